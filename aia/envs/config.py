@@ -1,0 +1,171 @@
+"""Typed configuration of the tracking env, its features and its reward.
+
+The dataclasses hold SPEC.md's defaults (the paper's text where the paper and the authors' 2019 code
+differ, and the 2019 reward); the Hydra presets in ``conf/env/`` override only what a setting changes.
+The schema is registered with Hydra's ConfigStore as ``env/schema`` so that every preset is type-checked
+and a misspelt field fails with its name.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional
+
+from hydra.core.config_store import ConfigStore
+
+
+@dataclass
+class RobotConfig:
+    """SE(2) robot driven by motion primitives (SPEC 2)."""
+
+    linear_speeds: list[float] = field(default_factory=lambda: [3.0, 2.0, 1.0, 0.0])
+    angular_speeds: list[float] = field(default_factory=lambda: [math.pi / 2, 0.0, -math.pi / 2])
+    # 2019 code: the robot keeps its position when sqrt(sum_k |p - t_k|^2) < target_margin (0 disables).
+    target_margin: float = 0.0
+
+
+@dataclass
+class TargetConfig:
+    """Double-integrator targets (SPEC 3)."""
+
+    q: float = 0.01
+    # None: no limit on the true target's speed (2019 code); a number rescales the velocity to that norm.
+    speed_limit: Optional[float] = None
+    # On a colliding move the target keeps its position and its velocity becomes gain * v + N(0, std^2).
+    reflect_gain: float = -0.4
+    reflect_noise_std: float = 0.2
+    # Initial distance from the robot, uniform in [min, max] at a uniform angle (2019 code: exactly 8 m).
+    init_distance: list[float] = field(default_factory=lambda: [0.0, 8.0])
+    # Collision-free placements are drawn from this many candidates before falling back to a free cell.
+    init_candidates: int = 32
+
+
+@dataclass
+class SensorConfig:
+    """Range-bearing sensor with field of view and occlusion (SPEC 4)."""
+
+    range: float = 10.0
+    fov_deg: float = 120.0
+    range_std: float = 0.2
+    bearing_std: float = 0.01
+    # Angular spacing of the rays that find the closest obstacle in the field of view (2019 code: 0.05 rad).
+    obstacle_ray_spacing: float = 0.05
+
+
+@dataclass
+class BeliefConfig:
+    """Per-target Kalman filter (SPEC 5)."""
+
+    # Process noise the filter assumes; None: the targets' true q.
+    q: Optional[float] = None
+    init_cov: float = 30.0
+    # Initial mean offset from the true target: "disk" (distance uniform in [0, size]) or "box" (+-size).
+    init_offset_shape: str = "disk"
+    init_offset: float = 5.0
+    # Keep the previous covariance when the new one has det >= det_cap (2019 code: 1e6). None disables.
+    # On by default: every score of the paper was produced with it (see docs/environment.md).
+    det_cap: Optional[float] = 1.0e6
+    # 2019 code: clip the mean to the map bounds and each velocity component to +-speed_clip.
+    clip_to_map: bool = False
+    speed_clip: Optional[float] = None
+
+
+@dataclass
+class FeatureConfig:
+    """The belief-feature transform (SPEC 6)."""
+
+    # "exact": radial and angular rates of the belief mean seen from the moving robot;
+    # "2019": the authors' 2019 formula (angular rate about the map origin, an extra |p| w term).
+    relative_velocity: str = "exact"
+
+
+@dataclass
+class RewardConfig:
+    """The reward transform (SPEC 7); defaults are the 2019 code's form, which produced the paper's runs."""
+
+    kappa_m: float = 0.1
+    # "mean" (2019 code) or "sum" (the paper's formula) of log det over targets.
+    target_aggregate: str = "mean"
+    kappa_d: float = 0.1
+    kappa_o: float = 1.0
+    # "2019": kappa_o * m^2 / max(m^2, o_r^2) with m = obstacle_margin; "paper": kappa_o / o_r^2.
+    obstacle_form: str = "2019"
+    obstacle_margin: float = 0.5
+    observed_bonus: float = 1.0
+    # Later rewrite: R <- min(0, R) - collision_penalty on a collision (0 disables).
+    collision_penalty: float = 0.0
+
+
+@dataclass
+class TrackingConfig:
+    """One tracking setting: world, robot, targets, sensor, belief, features and reward."""
+
+    map: str = "empty"
+    num_targets: int = 1
+    max_steps: int = 100
+    dt: float = 0.5
+    # margin2wall: a position within this distance of the bounds or an occupied cell collides.
+    margin: float = 0.5
+    # The collision grid is this many times finer than the map grid.
+    collision_supersample: int = 4
+    dtype: str = "float32"
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    target: TargetConfig = field(default_factory=TargetConfig)
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    belief: BeliefConfig = field(default_factory=BeliefConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+_CHOICES = {
+    "belief.init_offset_shape": ("disk", "box"),
+    "features.relative_velocity": ("exact", "2019"),
+    "reward.target_aggregate": ("mean", "sum"),
+    "reward.obstacle_form": ("2019", "paper"),
+    "dtype": ("float32", "float64"),
+}
+
+
+def _get(cfg: TrackingConfig, dotted: str):
+    value = cfg
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def validate(cfg: TrackingConfig) -> None:
+    """Raise ``ValueError`` naming the first field whose value is out of its allowed set or range."""
+    for name, allowed in _CHOICES.items():
+        if _get(cfg, name) not in allowed:
+            raise ValueError(f"env.{name}={_get(cfg, name)!r} is not one of {list(allowed)}")
+    positive = ("num_targets", "max_steps", "dt", "collision_supersample", "sensor.range", "sensor.fov_deg",
+                "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing", "belief.init_cov",
+                "target.init_candidates")
+    for name in positive:
+        if not _get(cfg, name) > 0:
+            raise ValueError(f"env.{name}={_get(cfg, name)!r} must be > 0")
+    non_negative = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin",
+                    "belief.init_offset", "reward.obstacle_margin", "reward.collision_penalty")
+    for name in non_negative:
+        if not _get(cfg, name) >= 0:
+            raise ValueError(f"env.{name}={_get(cfg, name)!r} must be >= 0")
+    low, high = (cfg.target.init_distance + [None, None])[:2]
+    if len(cfg.target.init_distance) != 2 or not 0 <= low <= high:
+        raise ValueError(f"env.target.init_distance={cfg.target.init_distance!r} must be [min, max] with 0 <= min <= max")
+    if len(cfg.robot.linear_speeds) == 0 or len(cfg.robot.angular_speeds) == 0:
+        raise ValueError("env.robot.linear_speeds and env.robot.angular_speeds must not be empty")
+    if cfg.sensor.fov_deg > 360:
+        raise ValueError(f"env.sensor.fov_deg={cfg.sensor.fov_deg!r} must be <= 360")
+    for name in ("belief.det_cap", "belief.speed_clip", "target.speed_limit"):
+        value = _get(cfg, name)
+        if value is not None and not value > 0:
+            raise ValueError(f"env.{name}={value!r} must be > 0 or null")
+    if cfg.belief.q is not None and not cfg.belief.q >= 0:
+        raise ValueError(f"env.belief.q={cfg.belief.q!r} must be >= 0 or null")
+
+
+ConfigStore.instance().store(group="env", name="schema", node=TrackingConfig)

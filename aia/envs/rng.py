@@ -1,0 +1,74 @@
+"""Counter-based random streams: one independent, reproducible stream per world.
+
+A batched env cannot hold one ``torch.Generator`` per world, and a single generator couples the worlds:
+what world 3 draws would depend on how many other worlds were reset before it. Here every draw is a
+pure function of ``(seed, world, episode, step, stream, slot)``, hashed into 32 random bits with integer
+tensor ops, so
+
+* a world's trajectory depends only on the seed, its own index and its own history (partial resets and
+  the batch size of the others change nothing);
+* the same seed gives the same numbers on CPU and CUDA (integer arithmetic is exact);
+* there is no generator state to save beyond the counters the env already keeps.
+
+The hash is Chris Wellons' ``lowbias32`` integer finaliser, applied as a keyed cascade; values live in
+the low 32 bits of ``int64`` tensors (products wrap modulo 2**64 and are masked back to 32 bits).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+_MASK32 = 0xFFFFFFFF
+_GOLDEN = 0x9E3779B9
+
+
+def mix32(x: Tensor) -> Tensor:
+    """Bijective 32-bit integer hash (lowbias32) of an int64 tensor holding values in [0, 2**32)."""
+    x = x ^ (x >> 16)
+    x = (x * 0x7FEB352D) & _MASK32
+    x = x ^ (x >> 15)
+    x = (x * 0x846CA68B) & _MASK32
+    return x ^ (x >> 16)
+
+
+def world_keys(seed: int, num_worlds: int, device: torch.device | str = "cpu") -> Tensor:
+    """Per-world 32-bit keys derived from a user seed (any Python int) and the world index."""
+    seed_lo = seed & _MASK32
+    seed_hi = (seed >> 32) & _MASK32
+    base = mix32(torch.tensor(seed_lo ^ mix32(torch.tensor(seed_hi)).item(), dtype=torch.int64))
+    index = torch.arange(num_worlds, dtype=torch.int64, device=device)
+    return mix32(mix32(index + _GOLDEN) ^ base.to(device))
+
+
+def episode_keys(world_key: Tensor, episode: Tensor) -> Tensor:
+    """The key of each world's current episode: one fresh stream per (world, episode)."""
+    return mix32(world_key ^ mix32((episode + _GOLDEN) & _MASK32))
+
+
+def random_bits(key: Tensor, counter: Tensor, stream: int, n: int) -> Tensor:
+    """``[B, n]`` int64 tensor of 32 random bits for each world's (key, counter, stream) and slot 0..n-1.
+
+    ``key`` and ``counter`` are ``[B]`` int64 tensors; ``stream`` separates the draws made for different
+    purposes within the same step; ``counter`` is normally the world's step index within its episode.
+    """
+    slot = torch.arange(n, dtype=torch.int64, device=key.device)
+    step_key = mix32(key ^ mix32((counter * 0x10001 + stream * 0x3C6EF372 + _GOLDEN) & _MASK32))
+    return mix32(step_key.unsqueeze(-1) ^ mix32(slot + _GOLDEN))
+
+
+def uniform(key: Tensor, counter: Tensor, stream: int, n: int, dtype: torch.dtype = torch.float32) -> Tensor:
+    """``[B, n]`` uniforms in [0, 1) with 24 random bits each (exact in float32)."""
+    bits = random_bits(key, counter, stream, n) >> 8
+    return bits.to(dtype) * (1.0 / (1 << 24))
+
+
+def normal(key: Tensor, counter: Tensor, stream: int, n: int, dtype: torch.dtype = torch.float32) -> Tensor:
+    """``[B, n]`` standard normals by the Box-Muller transform of ``2 * ceil(n / 2)`` uniforms."""
+    half = (n + 1) // 2
+    u = uniform(key, counter, stream, 2 * half, dtype)
+    radius = torch.sqrt(-2.0 * torch.log1p(-u[:, :half]))  # 1 - u lies in (0, 1]: no log(0)
+    angle = (2.0 * math.pi) * u[:, half:]
+    return torch.cat((radius * torch.cos(angle), radius * torch.sin(angle)), dim=-1)[:, :n]

@@ -1,0 +1,366 @@
+"""``TargetTrackingEnv``: B independent tracking worlds stepped as one tensor program.
+
+Each world holds a robot, ``N`` double-integrator targets and one Kalman-filter belief per target (SPEC
+1-5). A step moves the robot by one of the motion primitives, moves the targets, observes the visible ones
+with the range-bearing sensor, predicts every belief and updates the observed ones. The env emits the raw
+world state; the RL observation and the shaped reward come from the transforms in :mod:`aia.transforms`.
+
+Randomness comes from :mod:`aia.envs.rng`: every world has its own reproducible stream keyed by the seed,
+its index and its episode count, so partial resets of some worlds never change what the others draw.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import Tensor
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from aia.envs import belief, rng
+from aia.envs.config import TrackingConfig
+from aia.envs.dynamics import double_integrator, motion_primitives, se2_step
+from aia.envs.maps import load_map
+from aia.envs.sensing import MapGeometry, map_geometry
+
+# Stream identifiers: draws for different purposes never share random bits.
+_STEP_STREAM = 1
+_RESET_STREAM = 2
+
+STATE_KEYS = (
+    "robot_pose",
+    "robot_velocity",
+    "belief_mean",
+    "belief_cov",
+    "logdet_cov",
+    "observed",
+    "collision",
+    "obstacle_polar",
+    "target_state",
+)
+
+
+class TargetTrackingEnv(EnvBase):
+    """Batched active target tracking (SPEC 1-5) as a native TorchRL env.
+
+    Args:
+        config: the setting (map, targets, sensor, belief...); see :class:`~aia.envs.config.TrackingConfig`.
+        batch_size: number of independent worlds ``B`` (an int or ``(B,)``).
+        device: where the state lives and the step runs.
+        seed: seed of the per-world random streams (random when None).
+        validate_actions: check every action index is in range (one device sync per step on CUDA).
+
+    Emitted keys (all ``[B, ...]``): ``robot_pose`` (x, y, theta), ``robot_velocity`` (v, w of the last
+    commanded primitive), ``belief_mean`` ``[B, N, 4]``, ``belief_cov`` ``[B, N, 4, 4]``, ``logdet_cov``
+    ``[B, N]``, ``observed`` ``[B, N]``, ``collision``, ``obstacle_polar`` (distance, bearing of the closest
+    obstacle in view, ``(range, pi)`` when none), ``target_state`` ``[B, N, 4]`` (ground truth: for
+    evaluation and rendering only). ``reward`` is the paper's score increment ``-mean_i log det Sigma_i``;
+    :class:`~aia.transforms.InfoReward` replaces it with the shaped reward. Episodes end by truncation
+    after ``config.max_steps`` steps.
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        config: TrackingConfig | None = None,
+        batch_size: int | tuple[int] = 1,
+        device: torch.device | str = "cpu",
+        seed: int | None = None,
+        validate_actions: bool = True,
+    ) -> None:
+        config = config or TrackingConfig()
+        num_worlds = _check_batch_size(batch_size)
+        super().__init__(device=device, batch_size=torch.Size([num_worlds]))
+        self.config = config
+        self.validate_actions = validate_actions
+        self.num_targets = config.num_targets
+        self.dtype = getattr(torch, config.dtype)
+        dev, dt, fdt = self.device, config.dt, self.dtype
+
+        self.map = load_map(config.map)
+        self.geometry = map_geometry(
+            config.map,
+            margin=config.margin,
+            sensor_range=config.sensor.range,
+            fov=math.radians(config.sensor.fov_deg),
+            ray_spacing=config.sensor.obstacle_ray_spacing,
+            collision_supersample=config.collision_supersample,
+            device=dev,
+            dtype=fdt,
+        )
+        self.primitives = motion_primitives(config.robot.linear_speeds, config.robot.angular_speeds, fdt).to(dev)
+        transition, target_noise = double_integrator(dt, config.target.q)
+        belief_q = config.target.q if config.belief.q is None else config.belief.q
+        _, belief_noise = double_integrator(dt, belief_q)
+        self.transition = transition.to(dev, fdt)
+        # W is positive definite for q > 0 (its 2x2 block has determinant q^2 dt^4 / 12).
+        chol = torch.linalg.cholesky(target_noise) if config.target.q > 0 else torch.zeros(4, 4, dtype=torch.float64)
+        self.target_noise_chol = chol.to(dev, fdt)
+        self.belief_noise = belief_noise.to(dev, fdt)
+        self.meas_noise = torch.diag(
+            torch.tensor([config.sensor.range_std**2, config.sensor.bearing_std**2], dtype=fdt, device=dev)
+        )
+        self.meas_std = torch.tensor([config.sensor.range_std, config.sensor.bearing_std], dtype=fdt, device=dev)
+        self.log_det_cap = math.log(config.belief.det_cap) if config.belief.det_cap is not None else math.inf
+        self._make_specs()
+        self._init_state()
+        self.set_seed(int(torch.randint(0, 2**62, ()).item()) if seed is None else seed)
+
+    # ------------------------------------------------------------------ specs
+    def _make_specs(self) -> None:
+        B, N, dev, fdt = self.batch_size[0], self.num_targets, self.device, self.dtype
+        width, height = self.map.width, self.map.height
+        max_v = max(abs(v) for v in self.config.robot.linear_speeds)
+        max_w = max(abs(w) for w in self.config.robot.angular_speeds)
+        self.observation_spec = Composite(
+            robot_pose=Bounded(
+                low=torch.tensor([0.0, 0.0, -math.pi], dtype=fdt).expand(B, 3),
+                high=torch.tensor([width, height, math.pi], dtype=fdt).expand(B, 3),
+                shape=(B, 3), dtype=fdt, device=dev,
+            ),
+            robot_velocity=Bounded(
+                low=torch.tensor([-max_v, -max_w], dtype=fdt).expand(B, 2),
+                high=torch.tensor([max_v, max_w], dtype=fdt).expand(B, 2),
+                shape=(B, 2), dtype=fdt, device=dev,
+            ),
+            belief_mean=Unbounded(shape=(B, N, 4), dtype=fdt, device=dev),
+            belief_cov=Unbounded(shape=(B, N, 4, 4), dtype=fdt, device=dev),
+            logdet_cov=Unbounded(shape=(B, N), dtype=fdt, device=dev),
+            observed=Categorical(2, shape=(B, N), dtype=torch.bool, device=dev),
+            collision=Categorical(2, shape=(B,), dtype=torch.bool, device=dev),
+            obstacle_polar=Bounded(
+                low=torch.tensor([0.0, -math.pi], dtype=fdt).expand(B, 2),
+                high=torch.tensor([self.config.sensor.range, math.pi], dtype=fdt).expand(B, 2),
+                shape=(B, 2), dtype=fdt, device=dev,
+            ),
+            target_state=Unbounded(shape=(B, N, 4), dtype=fdt, device=dev),
+            shape=(B,),
+            device=dev,
+        )
+        self.action_spec = Categorical(self.primitives.shape[0], shape=(B,), device=dev)
+        self.reward_spec = Unbounded(shape=(B, 1), dtype=fdt, device=dev)
+        self.done_spec = Composite(
+            done=Categorical(2, shape=(B, 1), dtype=torch.bool, device=dev),
+            terminated=Categorical(2, shape=(B, 1), dtype=torch.bool, device=dev),
+            truncated=Categorical(2, shape=(B, 1), dtype=torch.bool, device=dev),
+            shape=(B,),
+            device=dev,
+        )
+
+    def _init_state(self) -> None:
+        B, N, dev, fdt = self.batch_size[0], self.num_targets, self.device, self.dtype
+        self.state = TensorDict(
+            robot_pose=torch.zeros(B, 3, dtype=fdt, device=dev),
+            robot_velocity=torch.zeros(B, 2, dtype=fdt, device=dev),
+            belief_mean=torch.zeros(B, N, 4, dtype=fdt, device=dev),
+            belief_cov=torch.eye(4, dtype=fdt, device=dev).expand(B, N, 4, 4).clone(),
+            logdet_cov=torch.zeros(B, N, dtype=fdt, device=dev),
+            observed=torch.zeros(B, N, dtype=torch.bool, device=dev),
+            collision=torch.zeros(B, dtype=torch.bool, device=dev),
+            obstacle_polar=torch.zeros(B, 2, dtype=fdt, device=dev),
+            target_state=torch.zeros(B, N, 4, dtype=fdt, device=dev),
+            batch_size=self.batch_size,
+            device=dev,
+        )
+        self._step_count = torch.zeros(B, dtype=torch.int64, device=dev)
+        self._episode = torch.zeros(B, dtype=torch.int64, device=dev)
+        self._episode_key = torch.zeros(B, dtype=torch.int64, device=dev)
+
+    def _set_seed(self, seed: int | None) -> None:
+        seed = int(torch.randint(0, 2**62, ()).item()) if seed is None else int(seed)
+        self._world_key = rng.world_keys(seed, self.batch_size[0], self.device)
+        self._episode.zero_()
+
+    # ------------------------------------------------------------------ reset
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        B = self.batch_size[0]
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(B)
+        if mask is None:
+            mask = torch.ones(B, dtype=torch.bool, device=self.device)
+        self._episode += mask
+        self._episode_key = torch.where(mask, rng.episode_keys(self._world_key, self._episode), self._episode_key)
+        self._step_count.masked_fill_(mask, 0)
+        fresh = self._initial_state()
+        self.state = _select(mask, fresh, self.state)
+        out = self.state.clone()
+        zeros = torch.zeros(B, 1, dtype=torch.bool, device=self.device)
+        out.update({"done": zeros, "terminated": zeros.clone(), "truncated": zeros.clone()})
+        return out
+
+    def _initial_state(self) -> TensorDict:
+        """A fresh episode for every world (the caller keeps the worlds that are not reset)."""
+        cfg, geom = self.config, self.geometry
+        B, N, M, dev, fdt = self.batch_size[0], self.num_targets, cfg.target.init_candidates, self.device, self.dtype
+        u = rng.uniform(self._episode_key, torch.zeros_like(self._step_count), _RESET_STREAM, 4 + N * (4 * M + 3), fdt)
+        u_robot, u_heading, u_target, u_belief, u_fallback = torch.split(u, (3, 1, 2 * N * M, 2 * N * M, 3 * N), -1)
+
+        if self.map.robot_start is not None:
+            robot_xy = torch.tensor(self.map.robot_start, dtype=fdt, device=dev).expand(B, 2)
+        else:
+            robot_xy = geom.sample_free(u_robot)
+        heading = (2 * u_heading - 1) * math.pi
+        pose = torch.cat((robot_xy, heading), -1)
+
+        # Targets: distance uniform in [lo, hi] at a uniform angle, first collision-free candidate.
+        lo, hi = cfg.target.init_distance
+        u_target = u_target.reshape(B, N, M, 2)
+        offset = _polar_offset(lo + (hi - lo) * u_target[..., 0], u_target[..., 1])
+        fallback = geom.sample_free(u_fallback.reshape(B, N, 3))
+        target_xy = _first_free(robot_xy[:, None, None, :] + offset, geom, fallback)
+
+        # Belief means: offset from the true target in a disk or a box, first collision-free candidate.
+        u_belief = u_belief.reshape(B, N, M, 2)
+        size = cfg.belief.init_offset
+        if cfg.belief.init_offset_shape == "disk":
+            offset = _polar_offset(size * u_belief[..., 0], u_belief[..., 1])
+        else:
+            offset = (2 * u_belief - 1) * size
+        belief_xy = _first_free(target_xy[:, :, None, :] + offset, geom, target_xy)
+
+        zeros2 = torch.zeros(B, N, 2, dtype=fdt, device=dev)
+        cov = cfg.belief.init_cov * torch.eye(4, dtype=fdt, device=dev).expand(B, N, 4, 4)
+        belief_mean = self._clip_belief(torch.cat((belief_xy, zeros2), -1))
+        return TensorDict(
+            robot_pose=pose,
+            robot_velocity=torch.zeros(B, 2, dtype=fdt, device=dev),
+            belief_mean=belief_mean,
+            belief_cov=cov.clone(),
+            logdet_cov=belief.logdet(cov),
+            observed=torch.zeros(B, N, dtype=torch.bool, device=dev),
+            collision=torch.zeros(B, dtype=torch.bool, device=dev),
+            obstacle_polar=geom.closest_obstacle(pose),
+            target_state=torch.cat((target_xy, zeros2), -1),
+            batch_size=self.batch_size,
+            device=dev,
+        )
+
+    # ------------------------------------------------------------------- step
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        cfg, geom, state = self.config, self.geometry, self.state
+        N = self.num_targets
+        action = tensordict.get("action")
+        if self.validate_actions:
+            _check_actions(action, self.primitives.shape[0])
+        self._step_count += 1
+        noise = rng.normal(self._episode_key, self._step_count, _STEP_STREAM, 8 * N, self.dtype).unflatten(-1, (N, 8))
+
+        # Robot: a colliding move (or, in the 2019 rule, one too close to the targets) keeps the position;
+        # the heading turns either way.
+        velocity = self.primitives[action]
+        pose = state["robot_pose"]
+        proposal = se2_step(pose, velocity, cfg.dt)
+        collision = geom.in_collision(proposal[:, :2])
+        blocked = collision
+        targets = state["target_state"]
+        if cfg.robot.target_margin > 0:
+            spread = (proposal[:, None, :2] - targets[..., :2]).square().sum((-1, -2))
+            blocked = blocked | (spread < cfg.robot.target_margin**2)
+        pose = torch.cat((torch.where(blocked[:, None], pose[:, :2], proposal[:, :2]), proposal[:, 2:]), -1)
+
+        targets = self._move_targets(targets, noise[..., :4], noise[..., 4:6])
+
+        # Sensor: range, field of view and line of sight to the true targets.
+        polar = belief.range_bearing(targets[..., :2], pose[:, None, :])
+        observed = (polar[..., 0] <= cfg.sensor.range) & (polar[..., 1].abs() <= math.radians(cfg.sensor.fov_deg) / 2)
+        observed &= geom.line_of_sight(pose[:, None, :2].expand(-1, N, -1), targets[..., :2])
+        measurement = polar + noise[..., 6:8] * self.meas_std
+
+        # Belief: predict all, update the observed ones (SPEC 5 order).
+        mean, cov = belief.predict(state["belief_mean"], state["belief_cov"], self.transition, self.belief_noise)
+        if math.isfinite(self.log_det_cap):
+            # 2019 code: keep the previous covariance when the predicted one reaches the det cap. (The
+            # update never raises det, so the cap it also applies after the update never bites.)
+            keep = belief.logdet(cov) >= self.log_det_cap
+            cov = torch.where(keep[..., None, None], state["belief_cov"], cov)
+        mean = self._clip_belief(mean)
+        mean_post, cov_post = belief.update(mean, cov, measurement, pose[:, None, :], self.meas_noise)
+        mean = torch.where(observed[..., None], self._clip_belief(mean_post), mean)
+        cov = torch.where(observed[..., None, None], cov_post, cov)
+        logdet = belief.logdet(cov)
+
+        self.state = TensorDict(
+            robot_pose=pose,
+            robot_velocity=velocity,
+            belief_mean=mean,
+            belief_cov=cov,
+            logdet_cov=logdet,
+            observed=observed,
+            collision=collision,
+            obstacle_polar=geom.closest_obstacle(pose),
+            target_state=targets,
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+        out = self.state.clone(recurse=False)
+        truncated = (self._step_count >= cfg.max_steps).unsqueeze(-1)
+        out.set("reward", -logdet.mean(-1, keepdim=True))
+        out.set("done", truncated)
+        out.set("terminated", torch.zeros_like(truncated))
+        out.set("truncated", truncated)
+        return out
+
+    def _move_targets(self, targets: Tensor, process: Tensor, reflect: Tensor) -> Tensor:
+        """Double-integrator step; a target whose next position collides keeps its position and reflects
+        its velocity: ``v <- gain * v' + N(0, std^2)`` (2019 rule)."""
+        cfg = self.config.target
+        moved = targets @ self.transition.mT + process @ self.target_noise_chol.mT
+        bounced = self.geometry.in_collision(moved[..., :2])
+        reflected = torch.cat((targets[..., :2], cfg.reflect_gain * moved[..., 2:] + cfg.reflect_noise_std * reflect), -1)
+        moved = torch.where(bounced[..., None], reflected, moved)
+        if cfg.speed_limit is not None:
+            speed = torch.linalg.vector_norm(moved[..., 2:], dim=-1, keepdim=True)
+            scale = torch.clamp(cfg.speed_limit / speed.clamp_min(1e-12), max=1.0)
+            moved = torch.cat((moved[..., :2], moved[..., 2:] * scale), -1)
+        return moved
+
+    def _clip_belief(self, mean: Tensor) -> Tensor:
+        """2019 code: clip belief means to the map bounds and their velocities to +-speed_clip."""
+        cfg = self.config.belief
+        if cfg.clip_to_map:
+            position = torch.minimum(mean[..., :2].clamp_min(0.0), self.geometry.size)
+            mean = torch.cat((position, mean[..., 2:]), -1)
+        if cfg.speed_clip is not None:
+            mean = torch.cat((mean[..., :2], mean[..., 2:].clamp(-cfg.speed_clip, cfg.speed_clip)), -1)
+        return mean
+
+
+# ---------------------------------------------------------------------- helpers
+def _check_batch_size(batch_size: int | tuple[int] | torch.Size) -> int:
+    shape = (batch_size,) if isinstance(batch_size, int) else tuple(batch_size)
+    if len(shape) != 1 or not isinstance(shape[0], int) or shape[0] < 1:
+        raise ValueError(f"batch_size={batch_size!r} must be a positive int B (or (B,)), the number of worlds")
+    return shape[0]
+
+
+def _check_actions(action: Tensor, num_actions: int) -> None:
+    if action.dtype.is_floating_point or action.dtype == torch.bool:
+        raise ValueError(f"action must hold integer indices in [0, {num_actions - 1}], got dtype {action.dtype}")
+    bad = (action < 0) | (action >= num_actions)
+    if bad.any():
+        raise ValueError(
+            f"action {action[bad][0].item()} is out of range: allowed indices are 0..{num_actions - 1} "
+            f"(motion primitive a = 3 * i_v + i_w)"
+        )
+
+
+def _polar_offset(distance: Tensor, u_angle: Tensor) -> Tensor:
+    angle = (2 * u_angle - 1) * math.pi
+    return torch.stack((distance * torch.cos(angle), distance * torch.sin(angle)), -1)
+
+
+def _first_free(candidates: Tensor, geometry: MapGeometry, fallback: Tensor) -> Tensor:
+    """The first collision-free candidate ``[..., M, 2]`` of each row, or ``fallback`` if none is free."""
+    free = ~geometry.in_collision(candidates)
+    first = free.to(torch.int8).argmax(-1, keepdim=True)
+    chosen = torch.gather(candidates, -2, first.unsqueeze(-1).expand(*first.shape, 2)).squeeze(-2)
+    return torch.where(free.any(-1, keepdim=True), chosen, fallback)
+
+
+def _select(mask: Tensor, new: TensorDict, old: TensorDict) -> TensorDict:
+    """Entries of ``new`` for the worlds in ``mask``, of ``old`` for the others."""
+    return new.apply(lambda n, o: torch.where(mask.reshape(-1, *([1] * (n.ndim - 1))), n, o), old)
