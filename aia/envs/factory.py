@@ -58,9 +58,12 @@ def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
         raise ValueError(f"invalid env config: {err}") from None
 
 
-def make_transforms(config: TrackingConfig) -> Compose:
+def make_transforms(config: TrackingConfig, compile: bool = False) -> Compose:
     """The feature and reward transforms of a setting (SPEC 6 and 7)."""
-    return Compose(BeliefFeatures(config.features.relative_velocity), InfoReward(config.reward))
+    return Compose(
+        BeliefFeatures(config.features.relative_velocity, compile=compile),
+        InfoReward(config.reward, compile=compile),
+    )
 
 
 def make_env(
@@ -71,14 +74,18 @@ def make_env(
     overrides: Sequence[str] = (),
     transforms: bool = True,
     validate_actions: bool = True,
+    compile: bool = False,
 ) -> TransformedEnv | TargetTrackingEnv:
     """A batched tracking env for a preset name (``"obstacles1"``) or a config, with the belief-feature and
-    reward transforms composed on (``transforms=False`` returns the raw env)."""
+    reward transforms composed on (``transforms=False`` returns the raw env). ``compile=True`` runs the
+    step and the transforms through ``torch.compile``."""
     if isinstance(setting, str):
         config = load_env_config(setting, overrides)
     elif overrides:
         raise ValueError("overrides apply to a preset name; edit the config object directly instead")
     else:
         config = to_tracking_config(setting)
-    env = TargetTrackingEnv(config, batch_size=batch_size, device=device, seed=seed, validate_actions=validate_actions)
-    return TransformedEnv(env, make_transforms(config)) if transforms else env
+    env = TargetTrackingEnv(
+        config, batch_size=batch_size, device=device, seed=seed, validate_actions=validate_actions, compile=compile
+    )
+    return TransformedEnv(env, make_transforms(config, compile)) if transforms else env

@@ -51,6 +51,8 @@ class TargetTrackingEnv(EnvBase):
         device: where the state lives and the step runs.
         seed: seed of the per-world random streams (random when None).
         validate_actions: check every action index is in range (one device sync per step on CUDA).
+        compile: run the step through ``torch.compile`` (fused kernels: ~6x faster on a CPU at B = 1,
+            ~3.5x at B = 4096; the first step of each env compiles for ~10 s).
 
     Emitted keys (all ``[B, ...]``): ``robot_pose`` (x, y, theta), ``robot_velocity`` (v, w of the last
     commanded primitive), ``belief_mean`` ``[B, N, 4]``, ``belief_cov`` ``[B, N, 4, 4]``, ``logdet_cov``
@@ -70,6 +72,7 @@ class TargetTrackingEnv(EnvBase):
         device: torch.device | str = "cpu",
         seed: int | None = None,
         validate_actions: bool = True,
+        compile: bool = False,
     ) -> None:
         config = config or TrackingConfig()
         num_worlds = _check_batch_size(batch_size)
@@ -105,6 +108,8 @@ class TargetTrackingEnv(EnvBase):
         )
         self.meas_std = torch.tensor([config.sensor.range_std, config.sensor.bearing_std], dtype=fdt, device=dev)
         self.log_det_cap = math.log(config.belief.det_cap) if config.belief.det_cap is not None else math.inf
+        self.compile_step = compile
+        self._advance_fn = None  # compiled lazily: torch.compile wrappers made in __init__ never compile
         self._make_specs()
         self._init_state()
         self.set_seed(int(torch.randint(0, 2**62, ()).item()) if seed is None else seed)
@@ -241,22 +246,43 @@ class TargetTrackingEnv(EnvBase):
 
     # ------------------------------------------------------------------- step
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        cfg, geom, state = self.config, self.geometry, self.state
-        N = self.num_targets
         action = tensordict.get("action")
         if self.validate_actions:
             _check_actions(action, self.primitives.shape[0])
         self._step_count += 1
-        noise = rng.normal(self._episode_key, self._step_count, _STEP_STREAM, 8 * N, self.dtype).unflatten(-1, (N, 8))
+        if self._advance_fn is None:
+            self._advance_fn = torch.compile(self._advance, dynamic=False) if self.compile_step else self._advance
+        state = self.state
+        fields = self._advance_fn(
+            state["robot_pose"], state["target_state"], state["belief_mean"], state["belief_cov"],
+            action, self._episode_key, self._step_count,
+        )
+        self.state = TensorDict(dict(zip(STATE_KEYS, fields)), batch_size=self.batch_size, device=self.device)
+        out = self.state.clone(recurse=False)
+        truncated = (self._step_count >= self.config.max_steps).unsqueeze(-1)
+        out.set("reward", -self.state["logdet_cov"].mean(-1, keepdim=True))
+        out.set("done", truncated)
+        out.set("terminated", torch.zeros_like(truncated))
+        out.set("truncated", truncated)
+        return out
+
+    def _advance(
+        self, pose: Tensor, targets: Tensor, mean: Tensor, cov: Tensor, action: Tensor, key: Tensor, step: Tensor
+    ) -> tuple[Tensor, ...]:
+        """One step of every world as a pure function of tensors (compiled when ``compile=True``).
+
+        Returns the new state in the order of :data:`STATE_KEYS`.
+        """
+        cfg, geom = self.config, self.geometry
+        N = self.num_targets
+        noise = rng.normal(key, step, _STEP_STREAM, 8 * N, self.dtype).unflatten(-1, (N, 8))
 
         # Robot: a colliding move (or, in the 2019 rule, one too close to the targets) keeps the position;
         # the heading turns either way.
         velocity = self.primitives[action]
-        pose = state["robot_pose"]
         proposal = se2_step(pose, velocity, cfg.dt)
         collision = geom.in_collision(proposal[:, :2])
         blocked = collision
-        targets = state["target_state"]
         if cfg.robot.target_margin > 0:
             spread = (proposal[:, None, :2] - targets[..., :2]).square().sum((-1, -2))
             blocked = blocked | (spread < cfg.robot.target_margin**2)
@@ -271,38 +297,20 @@ class TargetTrackingEnv(EnvBase):
         measurement = polar + noise[..., 6:8] * self.meas_std
 
         # Belief: predict all, update the observed ones (SPEC 5 order).
-        mean, cov = belief.predict(state["belief_mean"], state["belief_cov"], self.transition, self.belief_noise)
+        prior_cov = cov
+        mean, cov = belief.predict(mean, cov, self.transition, self.belief_noise)
         if math.isfinite(self.log_det_cap):
             # 2019 code: keep the previous covariance when the predicted one reaches the det cap. (The
             # update never raises det, so the cap it also applies after the update never bites.)
             keep = belief.logdet(cov) >= self.log_det_cap
-            cov = torch.where(keep[..., None, None], state["belief_cov"], cov)
+            cov = torch.where(keep[..., None, None], prior_cov, cov)
         mean = self._clip_belief(mean)
         mean_post, cov_post = belief.update(mean, cov, measurement, pose[:, None, :], self.meas_noise)
         mean = torch.where(observed[..., None], self._clip_belief(mean_post), mean)
         cov = torch.where(observed[..., None, None], cov_post, cov)
         logdet = belief.logdet(cov)
-
-        self.state = TensorDict(
-            robot_pose=pose,
-            robot_velocity=velocity,
-            belief_mean=mean,
-            belief_cov=cov,
-            logdet_cov=logdet,
-            observed=observed,
-            collision=collision,
-            obstacle_polar=geom.closest_obstacle(pose),
-            target_state=targets,
-            batch_size=self.batch_size,
-            device=self.device,
-        )
-        out = self.state.clone(recurse=False)
-        truncated = (self._step_count >= cfg.max_steps).unsqueeze(-1)
-        out.set("reward", -logdet.mean(-1, keepdim=True))
-        out.set("done", truncated)
-        out.set("terminated", torch.zeros_like(truncated))
-        out.set("truncated", truncated)
-        return out
+        obstacle = geom.closest_obstacle(pose)
+        return pose, velocity, mean, cov, logdet, observed, collision, obstacle, targets
 
     def _move_targets(self, targets: Tensor, process: Tensor, reflect: Tensor) -> Tensor:
         """Double-integrator step; a target whose next position collides keeps its position and reflects

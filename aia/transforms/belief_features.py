@@ -25,15 +25,16 @@ class BeliefFeatures(Transform):
     angular rate is taken about the map origin and whose robot velocity carries an extra ``|p| w`` term.
     """
 
-    def __init__(self, relative_velocity: str = "exact", out_key: str = "observation") -> None:
+    def __init__(self, relative_velocity: str = "exact", out_key: str = "observation", compile: bool = False) -> None:
         if relative_velocity not in _RELATIVE_VELOCITY:
             raise ValueError(f"relative_velocity={relative_velocity!r} is not one of {list(_RELATIVE_VELOCITY)}")
         super().__init__(in_keys=list(_IN_KEYS), out_keys=[out_key])
         self.relative_velocity = relative_velocity
+        self._features = torch.compile(belief_features, dynamic=False) if compile else belief_features
 
     def _call(self, tensordict: TensorDictBase) -> TensorDictBase:
         pose, velocity, mean, logdet, observed, obstacle = (tensordict.get(k) for k in _IN_KEYS)
-        features = belief_features(pose, velocity, mean, logdet, observed, obstacle, self.relative_velocity)
+        features = self._features(pose, velocity, mean, logdet, observed, obstacle, self.relative_velocity)
         tensordict.set(self.out_keys[0], features)
         return tensordict
 

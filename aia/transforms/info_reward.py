@@ -23,10 +23,11 @@ class InfoReward(Transform):
     rewrite). The defaults are the 2019 code's reward, which produced the paper's runs.
     """
 
-    def __init__(self, config: RewardConfig | None = None) -> None:
+    def __init__(self, config: RewardConfig | None = None, compile: bool = False) -> None:
         super().__init__(in_keys=list(_IN_KEYS), out_keys=["reward"])
         self.config = config or RewardConfig()
         self._sensor_range: float | None = None
+        self._reward = torch.compile(info_reward, dynamic=False) if compile else info_reward
 
     @property
     def sensor_range(self) -> float:
@@ -38,7 +39,7 @@ class InfoReward(Transform):
 
     def _call(self, tensordict: TensorDictBase) -> TensorDictBase:
         logdet, observed, obstacle, collision = (tensordict.get(k) for k in _IN_KEYS)
-        reward = info_reward(logdet, observed, obstacle[..., 0], collision, self.sensor_range, self.config)
+        reward = self._reward(logdet, observed, obstacle[..., 0], collision, self.sensor_range, self.config)
         tensordict.set("reward", reward.unsqueeze(-1))
         return tensordict
 

@@ -1,0 +1,96 @@
+"""Frames per second of the transformed tracking env under random actions.
+
+For each setting and batch size B, steps the env (with its feature and reward transforms) for a fixed
+number of batched steps after a warm-up and reports frames/s (= B * steps / seconds) and the time of one
+batched step. Prints a table and writes JSON (default ``benchmarks/results/env_throughput_<device>.json``).
+
+    python benchmarks/env_throughput.py                     # CPU, B in {1, 16, 256, 4096}, the four settings
+    python benchmarks/env_throughput.py --device cuda --batch-sizes 1 1024 16384 65536
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import torch
+
+from aia.envs import make_env
+
+SETTINGS = ("empty1", "obstacles1", "small2", "small3")
+
+
+def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int, compile: bool) -> dict:
+    """Time ``steps`` batched steps of random actions (auto-reset at the episode end, like a collector)."""
+    env = make_env(setting, batch_size=batch_size, device=device, seed=0, validate_actions=False, compile=compile)
+    num_actions = env.action_spec.n
+    td = env.reset()
+    actions = torch.randint(0, num_actions, (warmup + steps, batch_size), device=device)
+
+    def run(first: int, count: int, td):
+        for i in range(first, first + count):
+            td.set("action", actions[i])
+            _, td = env.step_and_maybe_reset(td)
+        return td
+
+    td = run(0, warmup, td)
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    start = time.perf_counter()
+    run(warmup, steps, td)
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    seconds = time.perf_counter() - start
+    return {
+        "setting": setting,
+        "batch_size": batch_size,
+        "device": device,
+        "compiled": compile,
+        "steps": steps,
+        "seconds": seconds,
+        "frames_per_s": batch_size * steps / seconds,
+        "ms_per_step": 1e3 * seconds / steps,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--settings", nargs="+", default=list(SETTINGS))
+    parser.add_argument("--batch-sizes", nargs="+", type=int, default=[1, 16, 256, 4096])
+    parser.add_argument("--steps", type=int, default=200, help="timed batched steps per measurement")
+    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--modes", nargs="+", choices=("eager", "compiled"), default=["eager", "compiled"],
+                        help="eager steps, and steps through torch.compile (make_env(compile=True))")
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+
+    rows = []
+    print(f"{'setting':<12}{'mode':<10}{'B':>7}{'frames/s':>14}{'ms/step':>10}")
+    for setting in args.settings:
+        for mode in args.modes:
+            for batch_size in args.batch_sizes:
+                row = measure(setting, batch_size, args.device, args.steps, args.warmup, mode == "compiled")
+                row["mode"] = mode
+                rows.append(row)
+                print(f"{setting:<12}{mode:<10}{batch_size:>7}{row['frames_per_s']:>14,.0f}{row['ms_per_step']:>10.3f}",
+                      flush=True)
+
+    out = args.out or Path(__file__).parent / "results" / f"env_throughput_{args.device.split(':')[0]}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "machine": platform.machine(),
+        "processor": platform.processor() or platform.machine(),
+        "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
+    }
+    out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
