@@ -3,9 +3,9 @@
 The env wraps :func:`aia.envs.factory.make_env` with ``batch_size=1`` and the feature and reward
 transforms, so an observation is the ``6N + 2`` feature vector of SPEC 6 (float32) and a reward is the
 shaped reward of SPEC 7. The paper's score increment ``-mean_i log det Sigma_i`` and the raw per-target
-quantities come in ``info``. Importing this module registers the id ``"aia/TargetTracking-v0"``::
+quantities come in ``info``. ``import aia`` registers the id ``"aia/TargetTracking-v0"``::
 
-    import gymnasium, aia.envs.gym
+    import aia, gymnasium
     env = gymnasium.make("aia/TargetTracking-v0", map="empty", num_targets=1, render_mode="rgb_array")
 """
 
@@ -23,8 +23,6 @@ from tensordict import TensorDict, TensorDictBase
 
 from aia.envs.factory import make_env
 from aia.envs.render import render_frame
-
-ENV_ID = "aia/TargetTracking-v0"
 
 # (map, number of targets) of the four paper settings.
 _PAPER_SETTINGS = {
@@ -185,12 +183,3 @@ class TargetTrackingGymEnv(gymnasium.Env):
             "collision": bool(state["collision"].reshape(-1)[0]),
             "score_increment": float(-logdet.mean()),
         }
-
-
-def register() -> None:
-    """Register :data:`ENV_ID` with Gymnasium (once; later calls do nothing)."""
-    if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="aia.envs.gym:TargetTrackingGymEnv")
-
-
-register()

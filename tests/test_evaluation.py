@@ -1,0 +1,25 @@
+"""Episode scores (SPEC 9)."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from aia.envs import make_env
+from aia.evaluation import episode_scores, run_episodes
+from aia.policies import RandomPolicy
+
+
+def test_episode_score_is_the_sum_of_minus_mean_logdet():
+    logdet = torch.tensor([[[1.0, 3.0], [2.0, 2.0], [0.0, -4.0]]])  # [B=1, T=3, N=2]
+    td = TensorDict({"next": {"logdet_cov": logdet}}, batch_size=[1, 3])
+    assert episode_scores(td).tolist() == [-(2.0 + 2.0 - 2.0)]
+
+
+def test_run_episodes_covers_one_episode_per_world_and_is_seeded():
+    env = make_env("empty1", batch_size=3, seed=0, overrides=["max_steps=25"])
+    first = run_episodes(env, RandomPolicy(12, seed=1), seed=5)
+    again = run_episodes(env, RandomPolicy(12, seed=1), seed=5)
+    assert first.shape == (3, 25)
+    assert first["next", "truncated"][:, -1].all() and not first["next", "truncated"][:, :-1].any()
+    assert torch.equal(episode_scores(first), episode_scores(again))
