@@ -6,7 +6,8 @@
   lies within ``margin`` of the map bounds or of an occupied cell's square (the 2019 code tests a 6 x 6
   window of map cells instead: same margin, half a cell coarser);
 * a polar obstacle table: for every map cell and each of ``num_bins`` global directions, the distance
-  from the cell centre along that ray to the first occupied cell (within the sensor range). The closest
+  from the cell centre along that ray to where it enters the first occupied cell (within the sensor
+  range; exact for a robot at the cell centre, off by at most half a cell diagonal elsewhere). The closest
   obstacle in the field of view is then a minimum over the bins the field of view covers, combined with an
   exact ray-rectangle test against the walls (the bounds shrunk by ``margin``, as in the 2019 code).
 """
@@ -81,8 +82,9 @@ class MapGeometry:
         pick = (uniforms[..., 0] * self.free_cells.numel()).long().clamp_max(self.free_cells.numel() - 1)
         flat = self.free_cells[pick]
         ncols = self.collision.shape[1]
-        corner = torch.stack(((flat % ncols), (flat // ncols)), dim=-1).to(self.dtype)
-        return (corner + uniforms[..., 1:3]) * self.fine_cell
+        centre = torch.stack(((flat % ncols), (flat // ncols)), dim=-1).to(self.dtype) + 0.5
+        # Shrunk by 0.1 % so that rounding never lands a point on the edge of a neighbouring cell.
+        return (centre + (uniforms[..., 1:3] - 0.5) * 0.999) * self.fine_cell
 
     # --------------------------------------------------------------- sight
     def line_of_sight(self, origin: Tensor, target: Tensor) -> Tensor:
@@ -179,28 +181,40 @@ def _collision_grid(grid_map: GridMap, margin: float, supersample: int) -> Tenso
 
 
 def _polar_obstacle_table(occupancy: Tensor, resolution: float, max_range: float, num_bins: int) -> Tensor:
-    """``[ny * nx, num_bins]`` distance from each cell centre along each global direction to the first
-    occupied cell (sampled every half cell; ``inf`` when none lies within ``max_range``).
+    """``[ny * nx, num_bins]`` distance from each cell centre along each global direction to where the ray
+    enters the first occupied cell (``inf`` when none lies within ``max_range``; leaving the grid is a hit).
 
-    Seen from a cell centre, the k-th sample along a direction always falls in the cell at the same integer
-    offset, so each sample is one shifted slice of the (padded) occupancy grid for all cells at once.
-    Leaving the grid counts as a hit.
+    Seen from a cell centre, the cells a ray crosses are the same integer offsets for every cell, so each
+    crossed cell is one shifted slice of the (padded) occupancy grid for all cells at once.
     """
     ny, nx = occupancy.shape
-    step = resolution / 2
     pad = math.ceil(max_range / resolution) + 1
     padded = torch.nn.functional.pad(occupancy, (pad, pad, pad, pad), value=True)
-    distances = torch.arange(1, math.floor(max_range / step) + 1, dtype=torch.float64) * step
     table = torch.full((num_bins, ny, nx), math.inf)
     for b in range(num_bins):
-        angle = b * 2 * math.pi / num_bins
-        offsets = torch.stack((torch.cos(torch.tensor(angle, dtype=torch.float64)) * distances,
-                               torch.sin(torch.tensor(angle, dtype=torch.float64)) * distances), -1)
-        shifts = torch.floor(0.5 + offsets / resolution).long().tolist()
-        nearest: dict[tuple[int, int], float] = {}
-        for (dc, dr), distance in zip(shifts, distances.tolist()):
-            nearest.setdefault((dc, dr), distance)  # first sample in a cell is the nearest one
+        crossed = _ray_cells(b * 2 * math.pi / num_bins, resolution, max_range)
         # Write from the far end inwards so that the nearest hit is written last.
-        for (dc, dr), distance in reversed(nearest.items()):
+        for dc, dr, distance in reversed(crossed):
             table[b].masked_fill_(padded[pad + dr : pad + dr + ny, pad + dc : pad + dc + nx], distance)
     return table.permute(1, 2, 0).reshape(ny * nx, num_bins).contiguous()
+
+
+def _ray_cells(angle: float, resolution: float, max_range: float) -> list[tuple[int, int, float]]:
+    """Cells ``(dcol, drow, entry distance)`` crossed by a ray from the centre of cell (0, 0), in order,
+    up to ``max_range``, starting with that cell at distance 0 (grid traversal of Amanatides and Woo)."""
+    direction = (math.cos(angle), math.sin(angle))
+    step, next_boundary, spacing = [], [], []
+    for d in direction:
+        step.append(1 if d > 0 else -1)
+        next_boundary.append(0.5 * resolution / abs(d) if abs(d) > 1e-12 else math.inf)
+        spacing.append(resolution / abs(d) if abs(d) > 1e-12 else math.inf)
+    cell = [0, 0]
+    crossed = [(0, 0, 0.0)]  # the start cell itself (only ever occupied for a robot inside an obstacle)
+    while True:
+        axis = 0 if next_boundary[0] < next_boundary[1] else 1
+        distance = next_boundary[axis]
+        if distance > max_range:
+            return crossed
+        cell[axis] += step[axis]
+        next_boundary[axis] += spacing[axis]
+        crossed.append((cell[0], cell[1], distance))

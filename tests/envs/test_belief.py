@@ -112,7 +112,7 @@ def test_predict_update_matches_numpy_reference_over_50_steps():
 
 
 def test_update_wraps_bearing_residual():
-    """Predicted bearing just below pi, measured just above -pi: the residual is +0.02 rad, not -2 pi + 0.02."""
+    """Predicted bearing just below pi, measured just above -pi: the residual is +0.02, not 0.02 - 2 pi."""
     mu = np.array([-10.0, 0.1, 0.0, 0.0])  # bearing from origin heading 0: pi - 0.01
     P = 4.0 * np.eye(4)
     pose = np.array([0.0, 0.0, 0.0])
@@ -135,7 +135,8 @@ def test_joseph_form_matches_standard_form_float64():
     M = rng.normal(size=(B, 4, 4))
     cov = M @ np.swapaxes(M, -1, -2) + 0.5 * np.eye(4)
     pos = rng.uniform(-10, 10, size=(B, 2))
-    pose = np.concatenate([rng.uniform(-10, 10, size=(B, 2)), rng.uniform(-math.pi, math.pi, size=(B, 1))], -1)
+    pose = np.concatenate([rng.uniform(-10, 10, size=(B, 2)), rng.uniform(-math.pi, math.pi, size=(B, 1))],
+                          -1)
     cov_t = torch.tensor(cov)
     H = belief.measurement_jacobian(torch.tensor(pos), torch.tensor(pose))
     joseph, K = belief.update_cov(cov_t, H, torch.tensor(V_NP))
@@ -162,8 +163,8 @@ def test_predict_matches_formula():
     np.testing.assert_allclose(m.numpy(), mean @ A.T, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(c.numpy(), A @ cov @ A.T + W, rtol=1e-12, atol=1e-14)
     # Hand value: position advances by dt * velocity.
-    m1, _ = belief.predict(torch.tensor([1.0, 2.0, 3.0, -4.0], dtype=torch.float64), torch.eye(4, dtype=torch.float64),
-                           A_t, W_t)
+    m1, _ = belief.predict(torch.tensor([1.0, 2.0, 3.0, -4.0], dtype=torch.float64),
+                           torch.eye(4, dtype=torch.float64), A_t, W_t)
     np.testing.assert_allclose(m1.numpy(), [2.5, 0.0, 3.0, -4.0], atol=1e-15)
 
 
@@ -193,7 +194,8 @@ def test_measurement_jacobian_finite_difference():
     rng = np.random.default_rng(3)
     B = 50
     state = torch.tensor(np.concatenate([rng.uniform(-20, 20, size=(B, 2)), rng.normal(size=(B, 2))], -1))
-    pose = torch.tensor(np.concatenate([rng.uniform(-20, 20, size=(B, 2)), rng.uniform(-3, 3, size=(B, 1))], -1))
+    pose = torch.tensor(np.concatenate([rng.uniform(-20, 20, size=(B, 2)), rng.uniform(-3, 3, size=(B, 1))],
+                                       -1))
     H = belief.measurement_jacobian(state[:, :2], pose)
     assert H.shape == (B, 2, 4)
     eps = 1e-6
@@ -221,7 +223,8 @@ def test_logdet_matches_slogdet():
     sign, ref = np.linalg.slogdet(cov)
     assert (sign > 0).all()
     np.testing.assert_allclose(belief.logdet(torch.tensor(cov)).numpy(), ref, rtol=1e-10, atol=1e-10)
-    assert belief.logdet(30.0 * torch.eye(4, dtype=torch.float64)).item() == pytest.approx(4 * math.log(30.0), abs=1e-12)
+    got = belief.logdet(30.0 * torch.eye(4, dtype=torch.float64)).item()
+    assert got == pytest.approx(4 * math.log(30.0), abs=1e-12)
     # float32 path
     got32 = belief.logdet(torch.tensor(cov, dtype=torch.float32)).numpy()
     np.testing.assert_allclose(got32, ref, rtol=0, atol=5e-3)

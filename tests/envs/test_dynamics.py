@@ -26,7 +26,8 @@ def test_se2_step_straight_line_with_heading():
     pose = torch.tensor([0.0, 0.0, 0.75 * math.pi], dtype=torch.float64)
     out = se2_step(pose, torch.tensor([2.0, 0.0], dtype=torch.float64), 0.5)
     s = 1.0 / math.sqrt(2.0)
-    torch.testing.assert_close(out, torch.tensor([-s, s, 0.75 * math.pi], dtype=torch.float64), rtol=0, atol=1e-12)
+    expected = torch.tensor([-s, s, 0.75 * math.pi], dtype=torch.float64)
+    torch.testing.assert_close(out, expected, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("theta", [0.0, 0.3, -1.2, 2.9, -3.0])
@@ -34,7 +35,8 @@ def test_se2_step_straight_line_with_heading():
 def test_se2_step_arc_closed_form(theta, w):
     v, dt = 2.0, 0.5
     x, y = 4.0, -1.5
-    out = se2_step(torch.tensor([x, y, theta], dtype=torch.float64), torch.tensor([v, w], dtype=torch.float64), dt)
+    pose = torch.tensor([x, y, theta], dtype=torch.float64)
+    out = se2_step(pose, torch.tensor([v, w], dtype=torch.float64), dt)
     ex = x + v / w * (math.sin(theta + w * dt) - math.sin(theta))
     ey = y + v / w * (math.cos(theta) - math.cos(theta + w * dt))
     eth = math.remainder(theta + w * dt, 2 * math.pi)
@@ -53,7 +55,8 @@ def test_se2_step_quarter_turn_arc_hand_value():
     expected = [radius * math.sin(math.pi / 4), radius * (1 - math.cos(math.pi / 4)), math.pi / 4]
     np.testing.assert_allclose(out.numpy(), expected, rtol=0, atol=1e-12)
     # Arc length 1 m is longer than the chord.
-    assert math.hypot(out[0].item(), out[1].item()) == pytest.approx(2 * radius * math.sin(math.pi / 8), abs=1e-12)
+    chord = 2 * radius * math.sin(math.pi / 8)
+    assert math.hypot(out[0].item(), out[1].item()) == pytest.approx(chord, abs=1e-12)
 
 
 def test_se2_step_pure_rotation_keeps_position():

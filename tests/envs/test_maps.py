@@ -152,7 +152,8 @@ def test_non_whole_size(tmp_path, size, res):
 
 
 def test_unknown_field(tmp_path):
-    path = _write_yaml(tmp_path / "typo.yaml", {"size": [4.0, 4.0], "resolution": 0.5, "boxs": [[1, 1, 2, 2]]})
+    spec = {"size": [4.0, 4.0], "resolution": 0.5, "boxs": [[1, 1, 2, 2]]}
+    path = _write_yaml(tmp_path / "typo.yaml", spec)
     with pytest.raises(ValueError) as info:
         load_map(path)
     assert "boxs" in str(info.value)

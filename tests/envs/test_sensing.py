@@ -1,4 +1,4 @@
-"""Tests of aia/envs/sensing.py: collision, line of sight, closest obstacle, free-space sampling, polar table."""
+"""Tests of aia/envs/sensing.py: collision, line of sight, closest obstacle, free sampling, polar table."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ MARGIN, RANGE, FOV, SPACING = 0.5, 10.0, math.radians(120), 0.05
 
 
 def _geometry(occupancy: torch.Tensor, resolution: float = 0.5, name: str = "hand") -> MapGeometry:
-    return MapGeometry(GridMap(name, resolution, occupancy), MARGIN, RANGE, FOV, SPACING, 4, "cpu", torch.float32)
+    grid_map = GridMap(name, resolution, occupancy)
+    return MapGeometry(grid_map, MARGIN, RANGE, FOV, SPACING, 4, "cpu", torch.float32)
 
 
 @pytest.fixture(scope="module")
@@ -64,8 +65,8 @@ def test_table_sizes(obstacles4, empty):
 
 # --------------------------------------------------------------- collision
 def test_collision_near_bounds(one_cell):
-    collide = torch.tensor([[0.3, 2.0], [9.7, 2.0], [2.0, 0.3], [2.0, 9.7], [0.3, 0.3], [-1.0, 5.0], [11.0, 5.0],
-                            [5.0, -0.1], [5.0, 10.2]])
+    collide = torch.tensor([[0.3, 2.0], [9.7, 2.0], [2.0, 0.3], [2.0, 9.7], [0.3, 0.3], [-1.0, 5.0],
+                            [11.0, 5.0],                            [5.0, -0.1], [5.0, 10.2]])
     free = torch.tensor([[0.7, 2.0], [9.3, 2.0], [2.0, 0.7], [2.0, 9.3], [0.7, 0.7], [9.3, 9.3]])
     assert one_cell.in_collision(collide).all()
     assert not one_cell.in_collision(free).any()
@@ -154,7 +155,8 @@ def test_closest_obstacle_column_ahead(column):
 def test_closest_obstacle_behind_is_ignored(big_column):
     # Column 2.5 m behind, bounds 14.5 m ahead and >10 m up/down within the field of view: nothing in view.
     # (Heading 0.5 keeps the field of view within [-0.55, 1.55] rad, away from the column at angle pi.)
-    out = big_column.closest_obstacle(torch.tensor([[15.0, 15.0, 0.0], [15.0, 15.0, 0.5], [15.0, 15.0, -0.5]]))
+    poses = torch.tensor([[15.0, 15.0, 0.0], [15.0, 15.0, 0.5], [15.0, 15.0, -0.5]])
+    out = big_column.closest_obstacle(poses)
     assert (out[:, 0] == RANGE).all()
     assert (out[:, 1] == torch.tensor(math.pi, dtype=torch.float32)).all()
 
@@ -166,10 +168,6 @@ def test_closest_obstacle_facing_column_distance(big_column):
     assert abs(out[0, 0].item() - 2.5) <= 0.5 + 1e-5
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "sensing.MapGeometry.closest_obstacle breaks ties between bins of equal (half-cell quantised) table "
-    "distance by taking the first bin of the field of view, so a wall straight ahead is reported up to "
-    "~0.4 rad to the right"))
 def test_closest_obstacle_perpendicular_wall_bearing(big_column, obstacles4):
     out = big_column.closest_obstacle(torch.tensor([[15.0, 15.0, math.pi]]))
     assert abs(out[0, 1].item()) <= 2 * big_column.bin_width
@@ -180,15 +178,17 @@ def test_closest_obstacle_perpendicular_wall_bearing(big_column, obstacles4):
 
 
 def test_closest_obstacle_nothing_in_range_exact(big_column, empty):
-    for geo, pose in ((big_column, [15.0, 15.0, 0.0]), (empty, [50.5, 50.5, 0.3]), (empty, [95.0, 50.5, math.pi])):
+    cases = ((big_column, [15.0, 15.0, 0.0]), (empty, [50.5, 50.5, 0.3]), (empty, [95.0, 50.5, math.pi]))
+    for geo, pose in cases:
         out = geo.closest_obstacle(torch.tensor([pose]))
         assert out[0, 0].item() == RANGE
         assert out[0, 1].item() == torch.tensor(math.pi, dtype=torch.float32).item()
 
 
 def test_closest_obstacle_empty_map_wall(empty):
-    out = empty.closest_obstacle(torch.tensor([[95.0, 50.5, 0.0], [95.0, 50.5, 0.5], [50.5, 96.0, math.pi / 2],
-                                               [4.0, 50.5, math.pi]]))
+    poses = torch.tensor([[95.0, 50.5, 0.0], [95.0, 50.5, 0.5], [50.5, 96.0, math.pi / 2],
+                          [4.0, 50.5, math.pi]])
+    out = empty.closest_obstacle(poses)
     # The walls are the bounds shrunk by the margin: x = 100.5, y = 100.5, x = 0.5.
     assert out[0].tolist() == [5.5, 0.0]
     # Turned 0.5 rad left, the perpendicular foot is at bearing -0.5 (the bin at global angle 0).
@@ -251,19 +251,15 @@ def test_sample_free_never_collides_and_covers(obstacles4):
 
 
 def test_sample_free_lowest_uniforms(obstacles4):
-    # Uniforms at 0 pick the lower-left corner of the first free fine cell.
+    # Uniforms at 0 pick (to within the 0.1 % shrink) the lower-left corner of the first free fine cell.
     xy = obstacles4.sample_free(torch.zeros(1, 3))
     assert not obstacles4.in_collision(xy).any()
     first = obstacles4.free_cells[0].item()
     cols = obstacles4.collision.shape[1]
-    assert xy[0].tolist() == pytest.approx([(first % cols) * 0.05, (first // cols) * 0.05], abs=1e-5)
-    assert xy[0].tolist() == pytest.approx([1.1, 1.1], abs=1e-5)  # 0.6 m border + 0.5 m margin
+    assert xy[0].tolist() == pytest.approx([(first % cols) * 0.05, (first // cols) * 0.05], abs=3e-5)
+    assert xy[0].tolist() == pytest.approx([1.1, 1.1], abs=3e-5)  # 0.6 m border + 0.5 m margin
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "sensing.MapGeometry.sample_free computes (corner + u) * fine_cell in float32: for u close to 1 "
-    "(>= 1 - 2**-16, which rng.uniform can return) corner + u rounds up to corner + 1, so the point lands on "
-    "the next fine cell, which collides when the free cell borders the collision zone"))
 def test_sample_free_highest_uniforms(obstacles4):
     top = 1.0 - 2.0**-24  # the largest value rng.uniform returns
     u = torch.tensor([[top, top, top], [0.5, top, top]])
@@ -280,10 +276,12 @@ def test_sample_free_empty_map_margin(empty):
 
 
 # -------------------------------------------------------------- polar table
-def _brute_force_ray(occ: np.ndarray, res: float, row: int, col: int, angle: float, max_range: float) -> float:
-    """March from the centre of (row, col) along ``angle`` every res / 2; first occupied (or off-grid) cell."""
+def _brute_force_ray(occ: np.ndarray, res: float, row: int, col: int, angle: float, max_range: float,
+                     ) -> float:
+    """March from the centre of (row, col) along ``angle`` every res / 200 to the first occupied (or off-grid)
+    cell; the distance at which the ray enters it, to within res / 200."""
     ny, nx = occ.shape
-    step = res / 2
+    step = res / 200
     k = 1
     while k * step <= max_range + 1e-9:
         d = k * step
@@ -312,13 +310,14 @@ def test_polar_table_matches_brute_force(obstacles4):
             assert math.isinf(got), (row, col, b, got)
         else:
             finite += 1
-            assert got == pytest.approx(expected, rel=1e-6), (row, col, b)
+            assert expected - 0.2 / 200 - 1e-5 <= got <= expected + 1e-5, (row, col, b, got, expected)
     assert finite > 100
 
 
 def test_polar_table_hand_values(column):
     # From cell (row 10, col 4), centre (2.25, 5.25): the column (col 12) straight along +x at 3.75 m; along
-    # -x the grid edge (col -1) at 2.5 m (leaving the grid counts as a hit); inside an occupied cell: 0.25.
+    # -x the grid edge (col -1) at 2.25 m (leaving the grid counts as a hit); inside an occupied cell: 0.
     nx = 20
     assert column.ray_table[10 * nx + 4, 0].item() == pytest.approx(3.75)
-    assert column.ray_table[10 * nx + 4, column.num_bins // 2].item() == pytest.approx(2.5)
+    assert column.ray_table[10 * nx + 4, column.num_bins // 2].item() == pytest.approx(2.25)
+    assert column.ray_table[10 * nx + 12, 0].item() == 0.0
