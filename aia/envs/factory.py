@@ -86,6 +86,6 @@ def make_env(
     else:
         config = to_tracking_config(setting)
     env = TargetTrackingEnv(
-        config, batch_size=batch_size, device=device, seed=seed, validate_actions=validate_actions, compile=compile
+        config, batch_size=batch_size, device=device, seed=seed, validate_actions=validate_actions, compile_step=compile
     )
     return TransformedEnv(env, make_transforms(config, compile)) if transforms else env
