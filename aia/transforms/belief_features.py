@@ -10,6 +10,7 @@ from torch import Tensor
 from torchrl.data import Bounded, Composite
 from torchrl.envs.transforms import Transform
 
+from aia.compiling import compiled
 from aia.envs.dynamics import wrap_angle
 
 _IN_KEYS = ("robot_pose", "robot_velocity", "belief_mean", "logdet_cov", "observed", "obstacle_polar")
@@ -30,7 +31,7 @@ class BeliefFeatures(Transform):
             raise ValueError(f"relative_velocity={relative_velocity!r} is not one of {list(_RELATIVE_VELOCITY)}")
         super().__init__(in_keys=list(_IN_KEYS), out_keys=[out_key])
         self.relative_velocity = relative_velocity
-        self._features = torch.compile(belief_features, dynamic=False) if compile else belief_features
+        self._features = compiled(belief_features) if compile else belief_features
 
     def _call(self, tensordict: TensorDictBase) -> TensorDictBase:
         pose, velocity, mean, logdet, observed, obstacle = (tensordict.get(k) for k in _IN_KEYS)

@@ -7,6 +7,7 @@ from tensordict import TensorDictBase
 from torch import Tensor
 from torchrl.envs.transforms import Transform
 
+from aia.compiling import compiled
 from aia.envs.config import RewardConfig
 
 _IN_KEYS = ("logdet_cov", "observed", "obstacle_polar", "collision")
@@ -27,7 +28,7 @@ class InfoReward(Transform):
         super().__init__(in_keys=list(_IN_KEYS), out_keys=["reward"])
         self.config = config or RewardConfig()
         self._sensor_range: float | None = None
-        self._reward = torch.compile(info_reward, dynamic=False) if compile else info_reward
+        self._reward = compiled(info_reward) if compile else info_reward
 
     @property
     def sensor_range(self) -> float:
