@@ -2,7 +2,9 @@
 
 For each setting and batch size B, steps the env (with its feature and reward transforms) for a fixed
 number of batched steps after a warm-up and reports frames/s (= B * steps / seconds) and the time of one
-batched step. Prints a table and writes JSON (default ``benchmarks/results/env_throughput_<device>.json``).
+batched step. Each case runs in a fresh process, as a user's run would (in one long process, compiled
+code of earlier envs adds guard checks to later ones). Prints a table and writes JSON (default
+``benchmarks/results/env_throughput_<device>.json``).
 
     python benchmarks/env_throughput.py                     # CPU, B in {1, 16, 256, 4096}, the four settings
     python benchmarks/env_throughput.py --device cuda --batch-sizes 1 1024 16384 65536
@@ -13,6 +15,8 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -66,14 +70,23 @@ def main() -> None:
     parser.add_argument("--modes", nargs="+", choices=("eager", "compiled"), default=["eager", "compiled"],
                         help="eager steps, and steps through torch.compile (make_env(compile=True))")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--single", default=None, help=argparse.SUPPRESS)  # one case, JSON in and out
     args = parser.parse_args()
+    if args.single:
+        case = json.loads(args.single)
+        print(json.dumps(measure(**case)))
+        return
 
     rows = []
     print(f"{'setting':<12}{'mode':<10}{'B':>7}{'frames/s':>14}{'ms/step':>10}")
     for setting in args.settings:
         for mode in args.modes:
             for batch_size in args.batch_sizes:
-                row = measure(setting, batch_size, args.device, args.steps, args.warmup, mode == "compiled")
+                case = dict(setting=setting, batch_size=batch_size, device=args.device, steps=args.steps,
+                            warmup=args.warmup, compile=mode == "compiled")
+                done = subprocess.run([sys.executable, __file__, "--single", json.dumps(case)],
+                                      capture_output=True, text=True, check=True)
+                row = json.loads(done.stdout.strip().splitlines()[-1])
                 row["mode"] = mode
                 rows.append(row)
                 print(f"{setting:<12}{mode:<10}{batch_size:>7}{row['frames_per_s']:>14,.0f}{row['ms_per_step']:>10.3f}",

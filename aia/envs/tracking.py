@@ -113,7 +113,7 @@ class TargetTrackingEnv(EnvBase):
         self._advance_fn = compiled(self._advance) if compile_step else self._advance
         self._make_specs()
         self._init_state()
-        self.set_seed(int(torch.randint(0, 2**62, ()).item()) if seed is None else seed)
+        self.set_seed(seed)
 
     # ------------------------------------------------------------------ specs
     def _make_specs(self) -> None:
@@ -157,25 +157,14 @@ class TargetTrackingEnv(EnvBase):
         )
 
     def _init_state(self) -> None:
-        B, N, dev, fdt = self.batch_size[0], self.num_targets, self.device, self.dtype
-        self.state = TensorDict(
-            robot_pose=torch.zeros(B, 3, dtype=fdt, device=dev),
-            robot_velocity=torch.zeros(B, 2, dtype=fdt, device=dev),
-            belief_mean=torch.zeros(B, N, 4, dtype=fdt, device=dev),
-            belief_cov=torch.eye(4, dtype=fdt, device=dev).expand(B, N, 4, 4).clone(),
-            logdet_cov=torch.zeros(B, N, dtype=fdt, device=dev),
-            observed=torch.zeros(B, N, dtype=torch.bool, device=dev),
-            collision=torch.zeros(B, dtype=torch.bool, device=dev),
-            obstacle_polar=torch.zeros(B, 2, dtype=fdt, device=dev),
-            target_state=torch.zeros(B, N, 4, dtype=fdt, device=dev),
-            batch_size=self.batch_size,
-            device=dev,
-        )
+        B, dev = self.batch_size[0], self.device
+        self.state = self.observation_spec.zero()  # placeholder until the first reset
         self._step_count = torch.zeros(B, dtype=torch.int64, device=dev)
         self._episode = torch.zeros(B, dtype=torch.int64, device=dev)
         self._episode_key = torch.zeros(B, dtype=torch.int64, device=dev)
 
     def _set_seed(self, seed: int | None) -> None:
+        """Key every world's stream from ``seed`` (None: a seed drawn from torch's global generator)."""
         seed = int(torch.randint(0, 2**62, ()).item()) if seed is None else int(seed)
         self._world_key = rng.world_keys(seed, self.batch_size[0], self.device)
         self._episode.zero_()
