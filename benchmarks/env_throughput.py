@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import statistics
 import subprocess
 import sys
 import time
@@ -27,12 +28,14 @@ from aia.envs import make_env
 SETTINGS = ("empty1", "obstacles1", "small2", "small3")
 
 
-def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int, compile: bool) -> dict:
-    """Time ``steps`` batched steps of random actions (auto-reset at the episode end, like a collector)."""
+def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int, compile: bool,
+            repeats: int = 5) -> dict:
+    """Median over ``repeats`` windows of ``steps`` batched steps of random actions (auto-reset at the
+    episode end, like a collector), after ``warmup`` steps (which include compilation)."""
     env = make_env(setting, batch_size=batch_size, device=device, seed=0, validate_actions=False, compile=compile)
     num_actions = env.action_spec.n
     td = env.reset()
-    actions = torch.randint(0, num_actions, (warmup + steps, batch_size), device=device)
+    actions = torch.randint(0, num_actions, (warmup + repeats * steps, batch_size), device=device)
 
     def run(first: int, count: int, td):
         for i in range(first, first + count):
@@ -41,19 +44,23 @@ def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int,
         return td
 
     td = run(0, warmup, td)
-    if device.startswith("cuda"):
-        torch.cuda.synchronize()
-    start = time.perf_counter()
-    run(warmup, steps, td)
-    if device.startswith("cuda"):
-        torch.cuda.synchronize()
-    seconds = time.perf_counter() - start
+    windows = []
+    for r in range(repeats):
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        td = run(warmup + r * steps, steps, td)
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        windows.append(time.perf_counter() - start)
+    seconds = statistics.median(windows)
     return {
         "setting": setting,
         "batch_size": batch_size,
         "device": device,
         "compiled": compile,
         "steps": steps,
+        "repeats": repeats,
         "seconds": seconds,
         "frames_per_s": batch_size * steps / seconds,
         "ms_per_step": 1e3 * seconds / steps,
@@ -65,7 +72,8 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--settings", nargs="+", default=list(SETTINGS))
     parser.add_argument("--batch-sizes", nargs="+", type=int, default=[1, 16, 256, 4096])
-    parser.add_argument("--steps", type=int, default=200, help="timed batched steps per measurement")
+    parser.add_argument("--steps", type=int, default=100, help="batched steps per timed window")
+    parser.add_argument("--repeats", type=int, default=5, help="timed windows per case; the median is reported")
     parser.add_argument("--warmup", type=int, default=20)
     parser.add_argument("--modes", nargs="+", choices=("eager", "compiled"), default=["eager", "compiled"],
                         help="eager steps, and steps through torch.compile (make_env(compile=True))")
@@ -83,7 +91,7 @@ def main() -> None:
         for mode in args.modes:
             for batch_size in args.batch_sizes:
                 case = dict(setting=setting, batch_size=batch_size, device=args.device, steps=args.steps,
-                            warmup=args.warmup, compile=mode == "compiled")
+                            warmup=args.warmup, compile=mode == "compiled", repeats=args.repeats)
                 done = subprocess.run([sys.executable, __file__, "--single", json.dumps(case)],
                                       capture_output=True, text=True, check=True)
                 row = json.loads(done.stdout.strip().splitlines()[-1])
