@@ -155,7 +155,9 @@ def validate(cfg: TrackingConfig) -> None:
             raise ValueError(f"env.{name}={_get(cfg, name)!r} must be >= 0")
     low, high = (cfg.target.init_distance + [None, None])[:2]
     if len(cfg.target.init_distance) != 2 or not 0 <= low <= high:
-        raise ValueError(f"env.target.init_distance={cfg.target.init_distance!r} must be [min, max] with 0 <= min <= max")
+        raise ValueError(
+            f"env.target.init_distance={cfg.target.init_distance!r} must be [min, max] with 0 <= min <= max"
+        )
     if len(cfg.robot.linear_speeds) == 0 or len(cfg.robot.angular_speeds) == 0:
         raise ValueError("env.robot.linear_speeds and env.robot.angular_speeds must not be empty")
     if cfg.sensor.fov_deg > 360:

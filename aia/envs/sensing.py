@@ -23,6 +23,7 @@ from torch import Tensor
 from aia.envs.dynamics import wrap_angle
 from aia.envs.maps import GridMap, load_map
 
+
 class MapGeometry:
     """Batched geometric queries against one :class:`GridMap` on one device."""
 
@@ -58,7 +59,10 @@ class MapGeometry:
         self.bin_width = 2 * math.pi / self.num_bins
         self.fov_bins = max(1, min(self.num_bins, round(fov / self.bin_width)))
         self.ray_table = (
-            _polar_obstacle_table(self.occupancy, self.resolution, sensor_range, self.num_bins).to(dtype)
+            # built on the CPU from the map's own grid, then moved
+            _polar_obstacle_table(grid_map.occupancy, self.resolution, sensor_range, self.num_bins).to(
+                self.device, dtype
+            )
             if self.has_obstacles
             else None
         )

@@ -173,7 +173,7 @@ class TargetTrackingEnv(EnvBase):
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         B = self.batch_size[0]
         mask = None
-        if tensordict is not None and "_reset" in tensordict.keys():
+        if tensordict is not None and "_reset" in tensordict:
             mask = tensordict.get("_reset").reshape(B)
         if mask is None:
             mask = torch.ones(B, dtype=torch.bool, device=self.device)
@@ -245,7 +245,7 @@ class TargetTrackingEnv(EnvBase):
             state["robot_pose"], state["target_state"], state["belief_mean"], state["belief_cov"],
             action, self._episode_key, self._step_count,
         )
-        fields = dict(zip(STATE_KEYS, fields))
+        fields = dict(zip(STATE_KEYS, fields, strict=True))
         # The kernel's outputs have the right batch size and device: skip TensorDict's per-entry checks
         # (a quarter of the TorchRL-side cost of a step at B = 1).
         self.state = TensorDict._new_unsafe(fields, batch_size=self.batch_size, device=self.device)
@@ -308,7 +308,8 @@ class TargetTrackingEnv(EnvBase):
         moved = belief.bmm(targets.unsqueeze(-2), self.transition.mT).squeeze(-2)
         moved = moved + belief.bmm(process.unsqueeze(-2), self.target_noise_chol.mT).squeeze(-2)
         bounced = self.geometry.in_collision(moved[..., :2])
-        reflected = torch.cat((targets[..., :2], cfg.reflect_gain * moved[..., 2:] + cfg.reflect_noise_std * reflect), -1)
+        bounce_velocity = cfg.reflect_gain * moved[..., 2:] + cfg.reflect_noise_std * reflect
+        reflected = torch.cat((targets[..., :2], bounce_velocity), -1)
         moved = torch.where(bounced[..., None], reflected, moved)
         if cfg.speed_limit is not None:
             speed = torch.linalg.vector_norm(moved[..., 2:], dim=-1, keepdim=True)

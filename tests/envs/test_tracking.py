@@ -234,7 +234,7 @@ def test_compiled_step_matches_eager():
     actions = torch.randint(0, 12, (12, 4), generator=torch.Generator().manual_seed(1))
     tds = [eager.reset(), compiled.reset()]
     for t in range(12):
-        tds = [env.step(td.set("action", actions[t]))["next"] for env, td in zip((eager, compiled), tds)]
+        tds = [env.step(td.set("action", actions[t]))["next"] for env, td in zip((eager, compiled), tds, strict=True)]
         assert torch.allclose(tds[0]["observation"], tds[1]["observation"], rtol=1e-4, atol=1e-4)
 
 
