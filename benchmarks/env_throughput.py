@@ -67,6 +67,24 @@ def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int,
     }
 
 
+def markdown_table(rows: list[dict]) -> str:
+    """Frames/s per setting and batch size, eager and compiled side by side (for the README)."""
+    cells = {(r["setting"], r["batch_size"], r["mode"]): r for r in rows}
+    settings = list(dict.fromkeys(r["setting"] for r in rows))
+    sizes = sorted({r["batch_size"] for r in rows})
+    modes = list(dict.fromkeys(r["mode"] for r in rows))
+    lines = ["| setting | B | " + " | ".join(f"{m} frames/s (ms/step)" for m in modes) + " |",
+             "|---|---:|" + "---:|" * len(modes)]
+    for setting in settings:
+        for size in sizes:
+            entries = []
+            for mode in modes:
+                row = cells.get((setting, size, mode))
+                entries.append(f"{row['frames_per_s']:,.0f} ({row['ms_per_step']:.2f})" if row else "")
+            lines.append(f"| {setting} | {size} | " + " | ".join(entries) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
@@ -110,6 +128,8 @@ def main() -> None:
         "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
     }
     out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
+    print()
+    print(markdown_table(rows))
     print(f"wrote {out}")
 
 
