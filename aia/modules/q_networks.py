@@ -1,0 +1,109 @@
+"""Q-networks for the tracking env: a plain MLP (DQN, Double DQN) and a mean/log-sd MLP (ADFQ).
+
+Both map the transformed env's ``observation`` ``[..., 6N+2]`` to one output per motion primitive.
+:func:`make_qvalue_actor` wraps either network into a TorchRL policy: a ``TensorDictModule`` that writes
+``action_value`` (and, for ADFQ, ``action_log_sd``) followed by TorchRL's ``QValueModule``, which writes
+the greedy ``action`` (an integer index for the ``Categorical`` action spec) and ``chosen_action_value``
+(``[..., 1]``, the value of that action).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import Tensor, nn
+from torchrl.data import Categorical, Composite, TensorSpec
+from torchrl.modules import MLP, QValueModule
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}
+
+
+def _activation(name: str) -> type[nn.Module]:
+    try:
+        return ACTIVATIONS[name]
+    except KeyError:
+        raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {name!r}") from None
+
+
+def make_q_network(
+    obs_dim: int, num_actions: int, hidden: Sequence[int] = (128, 128, 128), activation: str = "relu"
+) -> nn.Module:
+    """An MLP ``obs_dim -> hidden... -> num_actions`` (the paper: 3 x 128 for 1 target, 3 x 256 for 2-3)."""
+    return MLP(
+        in_features=obs_dim,
+        out_features=num_actions,
+        num_cells=list(hidden),
+        activation_class=_activation(activation),
+    )
+
+
+class ADFQNetwork(nn.Module):
+    """ADFQ Q-network: an MLP whose ``2 A`` outputs are a mean and a log standard deviation per action.
+
+    The log sd is clamped to ``[log sqrt(var_min), log sd_max]`` (reference defaults ``varth = 1e-10``, so
+    ``sd >= 1e-5``, and ``sd_max = 1e5``). The output layer starts with zero weights and biases ``init_mean``
+    for the means and ``log(init_sd)`` for the log sds, so at initialisation every action has exactly mean
+    ``init_mean`` (1) and sd ``init_sd`` (10) whatever the input, as in the reference: greedy ties are exact
+    and only Thompson sampling or epsilon-greedy break them. The zero weights still receive gradients (the
+    hidden activations are non-zero), so the trunk starts learning from the second update on.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        num_actions: int,
+        hidden: Sequence[int] = (128, 128, 128),
+        activation: str = "relu",
+        var_min: float = 1e-10,
+        sd_max: float = 1e5,
+        init_mean: float = 1.0,
+        init_sd: float = 10.0,
+    ) -> None:
+        super().__init__()
+        self.num_actions = num_actions
+        self.log_sd_min = 0.5 * math.log(var_min)
+        self.log_sd_max = math.log(sd_max)
+        self.mlp = MLP(
+            in_features=obs_dim,
+            out_features=2 * num_actions,
+            num_cells=list(hidden),
+            activation_class=_activation(activation),
+        )
+        head = self.mlp[-1]
+        with torch.no_grad():
+            head.weight.zero_()
+            head.bias[:num_actions] = init_mean
+            head.bias[num_actions:] = math.log(init_sd)
+
+    def forward(self, obs: Tensor) -> tuple[Tensor, Tensor]:
+        """``(mean, log_sd)``, each ``[..., A]``, with ``log_sd`` clamped to the sd bounds."""
+        mean, log_sd = self.mlp(obs).split(self.num_actions, dim=-1)
+        return mean, log_sd.clamp(self.log_sd_min, self.log_sd_max)
+
+
+def _unbatched_categorical(action_spec: TensorSpec) -> Categorical:
+    """The per-world ``Categorical`` spec of a (possibly batched, possibly composite) action spec."""
+    if isinstance(action_spec, Composite):
+        action_spec = action_spec["action"]
+    if not isinstance(action_spec, Categorical):
+        raise TypeError(f"expected a Categorical action spec, got {type(action_spec).__name__}")
+    return Categorical(action_spec.space.n, device=action_spec.device, dtype=action_spec.dtype)
+
+
+def make_qvalue_actor(
+    network: nn.Module, action_spec: TensorSpec, in_key: str = "observation", adfq: bool = False
+) -> TensorDictSequential:
+    """A greedy Q-value policy: ``network`` on ``in_key`` then TorchRL's ``QValueModule``.
+
+    Writes ``action_value`` (the Q-values, or the ADFQ means), for ADFQ also ``action_log_sd``, then
+    ``action`` (argmax index, int64, shape = batch shape) and ``chosen_action_value`` (``[..., 1]``).
+    ``action_spec`` may be the env's batched ``env.action_spec`` (``Categorical`` of shape ``[B]``), its
+    unbatched form or ``env.full_action_spec``: it is reduced to a shape-``()`` ``Categorical``, which
+    ``QValueModule`` needs to accept any leading batch shape (a batched spec makes it expect ``[B, B]``).
+    """
+    out_keys = ["action_value", "action_log_sd"] if adfq else ["action_value"]
+    value_module = TensorDictModule(network, in_keys=[in_key], out_keys=out_keys)
+    return TensorDictSequential(value_module, QValueModule(spec=_unbatched_categorical(action_spec)))
