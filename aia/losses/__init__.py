@@ -1,5 +1,5 @@
-"""Losses and targets for deep Q-learning (ADFQ posterior)."""
+"""Losses and targets for deep Q-learning (ADFQ posterior and loss)."""
 
-from aia.losses.adfq import adfq_posterior
+from aia.losses.adfq import ADFQLoss, adfq_posterior
 
-__all__ = ["adfq_posterior"]
+__all__ = ["ADFQLoss", "adfq_posterior"]

@@ -16,11 +16,20 @@ Gaussian product). This follows ``posterior_adfq(..., batch=True)`` of the autho
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
+from tensordict import TensorDict, TensorDictBase, TensorDictParams
+from tensordict.nn import TensorDictModuleBase
+from tensordict.utils import NestedKey
 from torch import Tensor
+from torchrl.data.tensor_specs import TensorSpec
+from torchrl.data.utils import _find_action_space
+from torchrl.modules import QValueModule
+from torchrl.objectives.common import LossModule
+from torchrl.objectives.utils import ValueEstimators, distance_loss
 
-__all__ = ["adfq_posterior"]
+__all__ = ["ADFQLoss", "adfq_posterior"]
 
 # The reference's open ends of the first and the last interval of the scan.
 _UPPER_END = 1e20
@@ -165,3 +174,244 @@ def adfq_posterior(
     post_mean = torch.where(is_done, term_mean, post_mean)
     post_var = torch.where(is_done, term_var, post_var).clamp_min(var_min)
     return post_mean.to(out_dtype), post_var.to(out_dtype)
+
+
+class ADFQLoss(LossModule):
+    """Deep ADFQ loss (the authors' ``deep_adfq``), a TorchRL ``LossModule`` with DQNLoss's conventions.
+
+    The value network is the ADFQ actor of :func:`aia.modules.make_qvalue_actor` (``adfq=True``), or any
+    ``TensorDictModule`` writing ``action_value`` (means) and ``action_log_sd`` (log sds) per action. It is
+    made functional with a separate copy of target parameters (``delay_value=True``), so TorchRL's
+    ``HardUpdate(loss, value_network_update_interval=50)`` / ``SoftUpdate`` drive it as they drive ``DQNLoss``.
+
+    For a batch of transitions (any batch shape) the target of the taken action ``a`` is computed without
+    gradients, as in the reference (``deep_adfq/deepadfq.py``, ``learn``, the lines after ``q_target_vals``):
+
+    * the current belief N(mu_{s,a}, s_{s,a}^2) from the TARGET parameters at ``s``;
+    * the next beliefs N(mu_{s',b}, s_{s',b}^2) of every action ``b`` from the TARGET parameters at ``s'``;
+    * both sds clipped to ``[sqrt(var_min), sd_max]`` (``sdMin = sqrt(varth)``, ``sdMax = 1e5``);
+    * the posterior ``(post_mean, post_var) = adfq_posterior(...)`` with ``noise``, ``var_min`` as ``varTH``,
+      and ``done`` = the ``terminated`` flag (a time-limit truncation is not terminal: the reference stores
+      ``float(not done)``, i.e. 0, when the time limit ends the episode).
+
+    The loss (``deep_adfq/build_graph.py``, ``build_train``) is, per sample,
+    ``huber(mean_pred - post_mean) + huber(rho_pred - (-log sqrt(post_var)))`` with ``rho = -log sd`` of the
+    ONLINE network at ``(s, a)`` (its log sd clipped to the same bounds, which stops the gradient outside
+    them, like the reference's ``tf.clip_by_value``), Huber with delta 1 (``loss_function="smooth_l1"``), then
+    averaged over the batch (weighted by ``priority_weight`` when present, TorchRL's convention:
+    ``sum(w l) / sum(w)``; the reference uses ``mean(w l)``).
+
+    Keyword Args:
+        gamma: discount. noise: extra variance of every TD target (1.0 in the reference's tracking script).
+        var_min: the reference's ``varth``: posterior variance floor, and ``sqrt(var_min)`` is the sd floor.
+        reward_var: variance of a terminal target. sd_max: the sd ceiling (``sdMax``).
+        loss_function: ``"smooth_l1"`` (the reference's Huber), ``"l2"`` or ``"l1"``.
+        delay_value: keep separate target parameters (``False``: the target uses the detached online ones).
+        action_space: ``"categorical"`` or ``"one-hot"`` (or a spec); read from the network's ``QValueModule``
+            when omitted, else ``"categorical"``.
+        reduction: ``"mean"`` (default), ``"sum"`` or ``"none"``.
+
+    ``forward`` returns ``loss`` (scalar) and detached diagnostics ``td_error`` (mean |mean error|),
+    ``sd_error`` (mean |-log sd error|) and ``posterior_sd`` (mean posterior sd); it writes the priority
+    ``|mean error| + |-log sd error|`` (the reference's prioritized-replay priority) shaped ``[..., 1]`` into
+    the input tensordict at the ``priority`` key.
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys (``loss.set_keys(name=key)``).
+
+        Attributes:
+            action_value: per-action means written by the value network. Defaults to ``"action_value"``.
+            action_log_sd: per-action log sds written by the value network. Defaults to ``"action_log_sd"``.
+            action: the taken action (index or one-hot). Defaults to ``"action"``.
+            priority: where the replay priority is written in the input. Defaults to ``"td_error"``.
+            reward: reward key under ``"next"``. Defaults to ``"reward"``.
+            done: done key under ``"next"`` (read for in_keys only). Defaults to ``"done"``.
+            terminated: terminal key under ``"next"``, the posterior's ``done``. Defaults to ``"terminated"``.
+            priority_weight: importance weights of a prioritized sampler. Defaults to ``"priority_weight"``.
+        """
+
+        action_value: NestedKey = "action_value"
+        action_log_sd: NestedKey = "action_log_sd"
+        action: NestedKey = "action"
+        priority: NestedKey = "td_error"
+        reward: NestedKey = "reward"
+        done: NestedKey = "done"
+        terminated: NestedKey = "terminated"
+        priority_weight: NestedKey = "priority_weight"
+
+    tensor_keys: _AcceptedKeys
+    default_keys = _AcceptedKeys
+    default_value_estimator = ValueEstimators.TD0
+    out_keys = ["loss", "td_error", "sd_error", "posterior_sd"]
+
+    value_network: TensorDictModuleBase
+    value_network_params: TensorDictParams
+    target_value_network_params: TensorDictParams
+
+    def __init__(
+        self,
+        value_network: TensorDictModuleBase,
+        *,
+        gamma: float = 0.99,
+        noise: float = 1.0,
+        var_min: float = 1e-10,
+        reward_var: float = 1e-3,
+        sd_max: float = 1e5,
+        loss_function: str = "smooth_l1",
+        delay_value: bool = True,
+        action_space: str | TensorSpec | None = None,
+        reduction: str = "mean",
+    ) -> None:
+        if not isinstance(value_network, TensorDictModuleBase):
+            raise TypeError(
+                "value_network must be a TensorDictModule(-like) writing action_value and action_log_sd, "
+                f"got {type(value_network).__name__}"
+            )
+        if loss_function not in ("smooth_l1", "l2", "l1"):
+            raise ValueError(f"loss_function must be 'smooth_l1', 'l2' or 'l1', got {loss_function!r}")
+        super().__init__()
+        self._in_keys: list[NestedKey] | None = None
+        self.delay_value = delay_value
+        self.convert_to_functional(value_network, "value_network", create_target_params=delay_value)
+        self.value_network_in_keys = list(value_network.in_keys)
+        if action_space is None:
+            action_space = next(
+                (m.action_space for m in value_network.modules() if isinstance(m, QValueModule)), "categorical"
+            )
+        self.action_space = _find_action_space(action_space)
+        if self.action_space not in ("categorical", "one_hot"):
+            raise ValueError(f"ADFQLoss supports categorical and one-hot actions, got {self.action_space!r}")
+        self.gamma = float(gamma)
+        self.noise = float(noise)
+        self.var_min = float(var_min)
+        self.reward_var = float(reward_var)
+        self.sd_max = float(sd_max)
+        self.log_sd_min = 0.5 * math.log(var_min)
+        self.log_sd_max = math.log(sd_max)
+        self.loss_function = loss_function
+        self.reduction = reduction
+
+    # ------------------------------------------------------------------ keys
+    def _set_in_keys(self) -> None:
+        keys = [
+            self.tensor_keys.action,
+            ("next", self.tensor_keys.reward),
+            ("next", self.tensor_keys.done),
+            ("next", self.tensor_keys.terminated),
+            *self.value_network.in_keys,
+            *[("next", key) for key in self.value_network.in_keys],
+        ]
+        self._in_keys = list(dict.fromkeys(keys))
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        """The keys ``forward`` reads."""
+        if self._in_keys is None:
+            self._set_in_keys()
+        return self._in_keys
+
+    def make_value_estimator(self, value_type: ValueEstimators | None = None, **hyperparams: float) -> None:
+        """ADFQ builds its own target (no value estimator); this only accepts ``gamma`` (like DQNLoss's call)."""
+        if value_type not in (None, ValueEstimators.TD0):
+            raise NotImplementedError(f"ADFQLoss has its own ADF target; value_type {value_type} is not supported")
+        unknown = set(hyperparams) - {"gamma"}
+        if unknown:
+            raise TypeError(f"unsupported hyperparameters {sorted(unknown)} (only gamma)")
+        if "gamma" in hyperparams:
+            self.gamma = float(hyperparams["gamma"])
+
+    # --------------------------------------------------------------- helpers
+    def _select_action(self, values: Tensor, action: Tensor) -> Tensor:
+        """The entry of the taken action: ``[..., A]`` -> ``[...]``."""
+        if self.action_space == "categorical":
+            if action.ndim != values.ndim:
+                action = action.unsqueeze(-1)
+            return torch.gather(values, -1, action.long()).squeeze(-1)
+        return (values * action.to(values.dtype)).sum(-1)
+
+    def _clip_log_sd(self, log_sd: Tensor) -> Tensor:
+        return log_sd.clamp(self.log_sd_min, self.log_sd_max)
+
+    @staticmethod
+    def _per_sample(x: Tensor, batch_size: torch.Size) -> Tensor:
+        """A ``[..., 1]`` (or ``[...]``) per-transition entry as ``[...]`` (the batch shape)."""
+        return x.reshape(batch_size)
+
+    def target_posterior(self, tensordict: TensorDictBase) -> tuple[Tensor, Tensor]:
+        """The ADF posterior ``(post_mean, post_var)`` (each the batch shape) that ``forward`` regresses onto.
+
+        Computed without gradients from the target parameters at ``s`` (the taken action's belief) and ``s'``
+        (every next action's belief), sds clipped to ``[sqrt(var_min), sd_max]``, ``done`` = ``terminated``.
+        """
+        keys = self.tensor_keys
+        batch_size = tensordict.batch_size
+        in_keys = self.value_network.in_keys
+        with torch.no_grad():
+            both = torch.stack([tensordict.select(*in_keys), tensordict.get("next").select(*in_keys)], dim=0)
+            with self.target_value_network_params.to_module(self.value_network, preserve_module_state=False):
+                both = self.value_network(both)
+            means = both.get(keys.action_value)
+            log_sds = self._clip_log_sd(both.get(keys.action_log_sd))
+            action = tensordict.get(keys.action)
+            mean = self._select_action(means[0], action)
+            var = torch.exp(2.0 * self._select_action(log_sds[0], action))
+            next_mean = means[1]
+            next_var = torch.exp(2.0 * log_sds[1])
+            reward = self._per_sample(tensordict.get(("next", keys.reward)), batch_size)
+            terminated = self._per_sample(tensordict.get(("next", keys.terminated)), batch_size)
+            return adfq_posterior(
+                next_mean,
+                next_var,
+                mean,
+                var,
+                reward,
+                self.gamma,
+                terminated,
+                noise=self.noise,
+                var_min=self.var_min,
+                reward_var=self.reward_var,
+            )
+
+    # --------------------------------------------------------------- forward
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """The ADFQ loss of a batch of transitions.
+
+        Args:
+            tensordict: transitions with the value network's in_keys at the root and under ``"next"``, the
+                ``action``, and ``("next", reward | terminated | done)`` shaped ``[..., 1]`` (or ``[...]``).
+
+        Returns:
+            ``TensorDict(loss=..., td_error=..., sd_error=..., posterior_sd=...)`` (scalars; only ``loss``
+            carries gradients, to the online parameters).
+        """
+        keys = self.tensor_keys
+        post_mean, post_var = self.target_posterior(tensordict)
+        td_online = tensordict.select(*self.value_network.in_keys)
+        with self.value_network_params.to_module(self.value_network, preserve_module_state=False):
+            td_online = self.value_network(td_online)
+        action = tensordict.get(keys.action)
+        pred_mean = self._select_action(td_online.get(keys.action_value), action)
+        pred_rho = -self._clip_log_sd(self._select_action(td_online.get(keys.action_log_sd), action))
+        target_rho = -0.5 * torch.log(post_var)
+        loss = distance_loss(pred_mean, post_mean, self.loss_function) + distance_loss(
+            pred_rho, target_rho, self.loss_function
+        )
+        with torch.no_grad():
+            mean_error = (pred_mean - post_mean).abs()
+            sd_error = (pred_rho - target_rho).abs()
+            priority = (mean_error + sd_error).unsqueeze(-1)
+        if tensordict.device is not None:
+            priority = priority.to(tensordict.device)
+        tensordict.set(keys.priority, priority, inplace=True)
+        weights = self._maybe_get_priority_weight(tensordict)
+        loss = self._reduce_loss(loss, tensordict=tensordict, weights=weights)
+        td_out = TensorDict(
+            loss=loss,
+            td_error=mean_error.mean(),
+            sd_error=sd_error.mean(),
+            posterior_sd=post_var.detach().sqrt().mean(),
+        )
+        self._clear_weakrefs(tensordict, td_out, "value_network_params", "target_value_network_params")
+        return td_out

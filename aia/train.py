@@ -1,0 +1,227 @@
+"""Deep Q-learning on the tracking env (Algorithm 1 of the paper, SPEC 8-9), wired from TorchRL parts.
+
+A ``Collector`` steps ``collector.num_envs`` worlds under the exploring policy into a
+``ReplayBuffer(LazyTensorStorage)``; every collected frame buys ``updates_per_frame`` optimiser steps of the
+chosen loss (TorchRL's ``DQNLoss`` for DQN and Double DQN, :class:`~aia.losses.ADFQLoss` for ADFQ) with a
+hard target-network copy every ``target_update_interval`` steps. After every ``eval.every_episodes``
+training episodes, ``eval.episodes`` episodes run as one batched rollout at epsilon ``eval.epsilon`` and
+their score (SPEC 9) is logged.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict.nn import TensorDictSequential
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.objectives import DQNLoss, HardUpdate, LossModule
+from torchrl.record.loggers import Logger
+from torchrl.record.loggers.csv import CSVLogger
+from tqdm import tqdm
+
+from aia.envs import make_env
+from aia.envs.factory import to_tracking_config
+from aia.evaluation import episode_scores, run_episodes
+from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, check_exploration, make_q_network
+from aia.modules.q_networks import make_qvalue_actor
+
+
+@dataclass
+class TrainingState:
+    """Counters that a checkpoint carries across a restart."""
+
+    frames: int = 0
+    updates: int = 0
+    episodes: int = 0
+    evaluations: int = 0
+    eval_scores: list[float] = field(default_factory=list)
+
+
+def make_actor(cfg: DictConfig, env) -> TensorDictSequential:
+    """The greedy Q-value actor (MLP, or the ADFQ mean/log-sd network) for ``env``'s observation."""
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    num_actions = env.action_spec.n
+    hidden = tuple(cfg.hidden)
+    if cfg.algo.name == "adfq":
+        network = ADFQNetwork(obs_dim, num_actions, hidden, var_min=cfg.algo.var_min, sd_max=cfg.algo.sd_max)
+    else:
+        network = make_q_network(obs_dim, num_actions, hidden)
+    return make_qvalue_actor(network.to(cfg.device), env.action_spec, adfq=cfg.algo.name == "adfq")
+
+
+def make_exploration(cfg: DictConfig, num_actions: int):
+    """The training-time exploration module (epsilon-greedy or Thompson sampling)."""
+    if cfg.exploration.name == "thompson":
+        return ThompsonSampling(seed=cfg.seed, device=cfg.device)
+    annealing = max(1, int(cfg.exploration.annealing_fraction * cfg.frames))
+    return EpsilonGreedy(num_actions, cfg.exploration.eps_init, cfg.exploration.eps_end, annealing,
+                         seed=cfg.seed, device=cfg.device)
+
+
+def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:
+    """DQN, Double DQN (TorchRL's DQNLoss) or ADFQ, with the discount of the config."""
+    if cfg.algo.name == "adfq":
+        from aia.losses import ADFQLoss
+
+        return ADFQLoss(actor, gamma=cfg.gamma, noise=cfg.algo.noise, var_min=cfg.algo.var_min,
+                        reward_var=cfg.algo.reward_var, loss_function=cfg.algo.loss_function)
+    loss = DQNLoss(actor, loss_function=cfg.algo.loss_function, delay_value=True,
+                   double_dqn=cfg.algo.name == "ddqn", action_space="categorical")
+    loss.make_value_estimator(gamma=cfg.gamma)
+    return loss
+
+
+def make_logger(cfg: DictConfig, out_dir: Path) -> Logger | None:
+    """TorchRL logger of the run (``logger=csv`` or ``logger=none``)."""
+    if cfg.logger.name == "none":
+        return None
+    if cfg.logger.name == "csv":
+        return CSVLogger(exp_name="csv", log_dir=str(out_dir))
+    raise ValueError(f"logger={cfg.logger.name!r} is not one of ['csv', 'none']")
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Reject inconsistent settings with a message naming the field."""
+    check_exploration(cfg.algo.name, cfg.exploration.name)
+    positive = {"frames": cfg.frames, "collector.num_envs": cfg.collector.num_envs, "batch_size": cfg.batch_size,
+                "buffer_size": cfg.buffer_size, "eval.episodes": cfg.eval.episodes,
+                "eval.every_episodes": cfg.eval.every_episodes, "target_update_interval": cfg.target_update_interval}
+    for name, value in positive.items():
+        if value < 1:
+            raise ValueError(f"{name}={value} must be >= 1")
+    if not cfg.updates_per_frame > 0:
+        raise ValueError(f"updates_per_frame={cfg.updates_per_frame} must be > 0")
+
+
+def save_checkpoint(path: Path, cfg: DictConfig, state: TrainingState, actor, loss, optimizer, exploration,
+                    buffer, env) -> None:
+    """Networks (online and target), optimiser, counters, RNG states, replay buffer and config."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    torch.save({
+        "config": OmegaConf.to_container(cfg, resolve=True),
+        "state": state.__dict__,
+        "actor": actor.state_dict(),
+        "loss": loss.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "exploration": {"generator": exploration.generator.get_state(),
+                        "frames": getattr(exploration, "frames", 0)},
+        "buffer": buffer.state_dict(),
+        "env_episodes": env.base_env._episode.clone(),
+        "torch_rng": torch.get_rng_state(),
+    }, tmp)
+    tmp.replace(path)  # never leave a half-written checkpoint behind
+
+
+def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
+    """Run one training job; returns the final counters (metrics go to the logger)."""
+    check_config(cfg)
+    torch.manual_seed(cfg.seed)
+    env_config = to_tracking_config(cfg.env)
+    env = make_env(env_config, batch_size=cfg.collector.num_envs, device=cfg.device, seed=cfg.seed)
+    eval_env = make_env(env_config, batch_size=cfg.eval.episodes, device=cfg.device, seed=cfg.seed + 1_000_003)
+    actor = make_actor(cfg, env)
+    exploration = make_exploration(cfg, env.action_spec.n)
+    policy = TensorDictSequential(actor, exploration)
+    eval_greedy = EpsilonGreedy(env.action_spec.n, cfg.eval.epsilon, cfg.eval.epsilon, 1, seed=cfg.seed + 1,
+                                device=cfg.device)
+    eval_policy = TensorDictSequential(actor, eval_greedy)
+    loss = make_loss(cfg, actor)
+    target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+    buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size, device=cfg.device), batch_size=cfg.batch_size)
+    state = TrainingState()
+    logger = make_logger(cfg, out_dir)
+
+    if cfg.resume:
+        checkpoint = torch.load(cfg.resume, weights_only=False)
+        actor.load_state_dict(checkpoint["actor"])
+        loss.load_state_dict(checkpoint["loss"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        buffer.load_state_dict(checkpoint["buffer"])
+        exploration.generator.set_state(checkpoint["exploration"]["generator"])
+        if isinstance(exploration, EpsilonGreedy):
+            exploration.step(checkpoint["exploration"]["frames"])
+        env.base_env._episode.copy_(checkpoint["env_episodes"])
+        torch.set_rng_state(checkpoint["torch_rng"])
+        state = TrainingState(**checkpoint["state"])
+        print(f"resumed from {cfg.resume} at frame {state.frames} (the interrupted episode starts afresh)")
+
+    num_envs = cfg.collector.num_envs
+    remaining = cfg.frames - state.frames
+    if remaining <= 0:
+        return state
+    collector = Collector(
+        env, policy, frames_per_batch=num_envs, total_frames=math.ceil(remaining / num_envs) * num_envs,
+        init_random_frames=max(0, cfg.warmup_frames - state.frames), device=cfg.device,
+    )
+    running_score = torch.zeros(num_envs, device=cfg.device)
+    updates_owed = 0.0
+    start = time.perf_counter()
+    bar = tqdm(total=cfg.frames, initial=state.frames, unit="frame", unit_scale=True, desc=cfg.algo.name,
+               mininterval=1.0)
+    try:
+        for batch in collector:
+            batch = batch.reshape(-1)
+            buffer.extend(batch)
+            state.frames += batch.numel()
+            if isinstance(exploration, EpsilonGreedy):
+                exploration.step(batch.numel())
+            running_score += -batch["next", "logdet_cov"].mean(-1).reshape(-1, num_envs).sum(0)
+            done = batch["next", "done"].reshape(-1, num_envs).any(0)
+            for score in running_score[done].tolist():
+                state.episodes += 1
+                if logger:
+                    logger.log_scalar("train/score", score, step=state.frames)
+                if state.episodes % cfg.eval.every_episodes == 0:
+                    evaluate(eval_env, eval_policy, state, logger)
+                    bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", eps=_epsilon(exploration))
+            running_score[done] = 0.0
+
+            if state.frames >= cfg.warmup_frames:
+                updates_owed += cfg.updates_per_frame * batch.numel()
+                while updates_owed >= 1:
+                    updates_owed -= 1
+                    losses = loss(buffer.sample())
+                    optimizer.zero_grad()
+                    losses["loss"].backward()
+                    torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.grad_clip)
+                    optimizer.step()
+                    target_updater.step()
+                    state.updates += 1
+                if logger and state.updates % 100 == 0:
+                    logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
+                    logger.log_scalar("train/epsilon", _epsilon(exploration), step=state.frames)
+            if state.frames % cfg.checkpoint_every_frames < batch.numel():
+                save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer,
+                                exploration, buffer, env)
+            bar.update(batch.numel())
+    finally:
+        bar.close()
+        collector.shutdown()
+    save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer, exploration, buffer,
+                    env)
+    seconds = time.perf_counter() - start
+    if logger:
+        logger.log_scalar("train/frames_per_s", remaining / seconds, step=state.frames)
+    return state
+
+
+def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
+    """One batched rollout of ``env.batch_size`` episodes at the evaluation epsilon; logs mean and std."""
+    scores = episode_scores(run_episodes(env, policy))
+    state.evaluations += 1
+    state.eval_scores.append(scores.mean().item())
+    if logger:
+        logger.log_scalar("eval/score", scores.mean().item(), step=state.frames)
+        logger.log_scalar("eval/score_std", scores.std(correction=0).item(), step=state.frames)
+
+
+def _epsilon(exploration) -> float:
+    return float(getattr(exploration, "epsilon", float("nan")))
