@@ -160,6 +160,7 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
     collector = Collector(
         env, policy, frames_per_batch=num_envs, total_frames=math.ceil(remaining / num_envs) * num_envs,
         init_random_frames=max(0, cfg.warmup_frames - state.frames), device=cfg.device,
+        auto_register_policy_transforms=False,  # the Q-networks keep no recurrent state
     )
     running_score = torch.zeros(num_envs, device=cfg.device)
     updates_owed = 0.0
