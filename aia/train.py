@@ -196,9 +196,9 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
                     optimizer.step()
                     target_updater.step()
                     state.updates += 1
-                if logger and state.updates % 100 == 0:
-                    logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
-                    logger.log_scalar("train/epsilon", _epsilon(exploration), step=state.frames)
+                    if logger and state.updates % 100 == 0:
+                        logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
+                        logger.log_scalar("train/epsilon", _epsilon(exploration), step=state.frames)
             if state.frames % cfg.checkpoint_every_frames < batch.numel():
                 save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer,
                                 exploration, buffer, env)

@@ -51,10 +51,15 @@ def test_resume_continues_the_counters(tmp_path):
     assert resumed.eval_scores[: len(first.eval_scores)] == first.eval_scores
 
 
-def test_csv_logger_writes_the_eval_curve(tmp_path):
-    train(_config("frames=120", *[o for o in SMALL if not o.startswith("logger")]), tmp_path)
-    curve = (tmp_path / "csv" / "scalars" / "eval" / "score.csv").read_text().strip().splitlines()
-    assert len(curve) == 3  # one evaluation per training episode
+def test_csv_logger_writes_the_curves(tmp_path):
+    # a quarter of an update per frame: updates are owed across batches
+    cfg = _config("frames=560", "updates_per_frame=0.25", *[o for o in SMALL if not o.startswith("logger")])
+    state = train(cfg, tmp_path)
+    assert state.updates == 115  # frames 100..560 at 0.25 per frame
+    scalars = tmp_path / "csv" / "scalars"
+    curve = (scalars / "eval" / "score.csv").read_text().strip().splitlines()
+    assert len(curve) == 14  # one evaluation per 40-step training episode
+    assert len((scalars / "train" / "loss.csv").read_text().strip().splitlines()) == 1  # every 100 updates
 
 
 def test_bad_configs_name_the_field(tmp_path):
