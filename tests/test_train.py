@@ -103,3 +103,16 @@ def test_adfq_thompson_learns_to_beat_random_and_its_initial_policy(tmp_path):
     # measured: learned 775, untrained (all actions tied: always primitive 0) 611, random 5
     assert learned > random + 300, (learned, random)
     assert learned > untrained + 50, (learned, untrained)
+
+
+@pytest.mark.parametrize("experiment, targets, hidden, lr, every", [
+    ("paper_empty1", 1, 128, 1e-3, 1), ("paper_obstacles1", 1, 128, 1e-3, 1),
+    ("paper_small2", 2, 256, 5e-4, 2), ("paper_small3", 3, 256, 5e-4, 2),
+])
+@pytest.mark.parametrize("algo", ["dqn", "ddqn", "adfq"])
+def test_every_experiment_preset_composes(experiment, targets, hidden, lr, every, algo):
+    cfg = _config(f"experiment={experiment}", f"algo={algo}")
+    assert cfg.env.num_targets == targets and list(cfg.hidden) == [hidden] * 3 and cfg.lr == lr
+    assert cfg.eval.every_episodes == every and cfg.batch_size == 64 and cfg.buffer_size == 1000
+    # a command-line override still wins over the preset
+    assert _config(f"experiment={experiment}", "lr=0.01").lr == 0.01

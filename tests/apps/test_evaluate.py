@@ -1,0 +1,51 @@
+"""aia-eval: scores a saved policy reproducibly and names a bad checkpoint."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from hydra import compose, initialize_config_module
+
+from aia.apps.evaluate import evaluate_checkpoint
+from aia.train import train
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=["frames=200", "env.max_steps=40", "warmup_frames=100",
+                                                      "logger=none", "eval.episodes=2", "batch_size=16"])
+    train(cfg, out)
+    return out / "checkpoints" / "last.pt"
+
+
+def test_evaluation_is_seeded_and_batched(checkpoint):
+    first = evaluate_checkpoint(checkpoint, episodes=6, epsilon=0.05, seed=3, device="cpu")
+    again = evaluate_checkpoint(checkpoint, episodes=6, epsilon=0.05, seed=3, device="cpu")
+    other = evaluate_checkpoint(checkpoint, episodes=6, epsilon=0.05, seed=4, device="cpu")
+    assert first["scores"] == again["scores"] and first["scores"] != other["scores"]
+    assert len(first["scores"]) == 6 and first["frames_trained"] == 200 and first["algo"] == "dqn"
+    assert first["score_mean"] == pytest.approx(sum(first["scores"]) / 6, rel=1e-5)
+
+
+def test_bad_checkpoints_are_named(tmp_path, checkpoint):
+    with pytest.raises(ValueError, match="does not exist"):
+        evaluate_checkpoint(tmp_path / "missing.pt", 2, 0.05, 0, "cpu")
+    junk = tmp_path / "junk.pt"
+    junk.write_text("not a checkpoint")
+    with pytest.raises(ValueError, match="junk.pt.*not a readable torch checkpoint"):
+        evaluate_checkpoint(junk, 2, 0.05, 0, "cpu")
+    with pytest.raises(ValueError, match="epsilon=1.5"):
+        evaluate_checkpoint(checkpoint, 2, 1.5, 0, "cpu")
+
+
+def test_app_prints_and_writes_its_log(tmp_path, checkpoint):
+    result = subprocess.run([sys.executable, "-m", "aia.apps.evaluate", f"checkpoint={checkpoint}", "episodes=3",
+                             f"hydra.run.dir={tmp_path}"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "over 3 episodes" in result.stdout and f"log written to {tmp_path / 'eval.json'}" in result.stdout
+    assert len(json.loads((tmp_path / "eval.json").read_text())["scores"]) == 3
