@@ -122,6 +122,8 @@ def save_checkpoint(path: Path, cfg: DictConfig, state: TrainingState, actor, lo
 def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
     """Run one training job; returns the final counters (metrics go to the logger)."""
     check_config(cfg)
+    if cfg.get("threads"):
+        torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     env_config = to_tracking_config(cfg.env)
     env = make_env(env_config, batch_size=cfg.collector.num_envs, device=cfg.device, seed=cfg.seed)
