@@ -184,7 +184,7 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
                     logger.log_scalar("train/score", score, step=state.frames)
                 if state.episodes % cfg.eval.every_episodes == 0:
                     evaluate(eval_env, eval_policy, state, logger)
-                    bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", eps=_epsilon(exploration))
+                    bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", **_exploration_status(exploration))
             running_score[done] = 0.0
 
             if state.frames >= cfg.warmup_frames:
@@ -200,7 +200,8 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
                     state.updates += 1
                     if logger and state.updates % 100 == 0:
                         logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
-                        logger.log_scalar("train/epsilon", _epsilon(exploration), step=state.frames)
+                        if isinstance(exploration, EpsilonGreedy):
+                            logger.log_scalar("train/epsilon", exploration.epsilon, step=state.frames)
             if state.frames % cfg.checkpoint_every_frames < batch.numel():
                 save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer,
                                 exploration, buffer, env)
@@ -226,5 +227,6 @@ def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
         logger.log_scalar("eval/score_std", scores.std(correction=0).item(), step=state.frames)
 
 
-def _epsilon(exploration) -> float:
-    return float(getattr(exploration, "epsilon", float("nan")))
+def _exploration_status(exploration) -> dict[str, str]:
+    """What the progress bar shows of the exploration (epsilon-greedy's current epsilon)."""
+    return {"eps": f"{exploration.epsilon:.2f}"} if isinstance(exploration, EpsilonGreedy) else {}

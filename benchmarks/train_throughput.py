@@ -1,0 +1,121 @@
+"""Optimiser updates per second of each loss, and frames per second of the whole training loop.
+
+1. Updates: one Adam step (loss, backward, gradient clipping, target-update bookkeeping) on a batch of 64
+   transitions, for DQN, Double DQN and ADFQ, on the 1-target network (3 x 128, 8 inputs) and the 3-target
+   network (3 x 256, 20 inputs); median over 5 windows.
+2. Loop: ``aia.train.train`` in the paper's regime (one world, one update per frame, evaluation after
+   every episode) after the warm-up, frames per second of the whole job.
+
+Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<device>.json``).
+
+    python benchmarks/train_throughput.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+from hydra import compose, initialize_config_module
+from torchrl.objectives import HardUpdate
+
+from aia.envs import make_env
+from aia.train import make_actor, make_loss, train
+
+SETTINGS = {"empty1": "3x128", "small3": "3x256"}
+EXPERIMENTS = {"empty1": "paper_empty1", "small3": "paper_small3"}
+
+
+def _config(*overrides: str):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        return compose(config_name="train", overrides=list(overrides))
+
+
+def measure_updates(setting: str, algo: str, device: str, updates: int = 200, repeats: int = 5) -> dict:
+    """Median time of one optimiser step on a batch of 64 replayed transitions."""
+    exploration = "thompson" if algo == "adfq" else "egreedy"
+    cfg = _config(f"experiment={EXPERIMENTS[setting]}", f"algo={algo}", f"exploration={exploration}",
+                  f"device={device}")
+    env = make_env(setting, batch_size=64, device=device, seed=0)
+    actor = make_actor(cfg, env)
+    batch = env.rollout(2, policy=actor)[:, -1]  # 64 transitions with the training keys
+    loss = make_loss(cfg, actor)
+    updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+
+    def step():
+        out = loss(batch.clone())
+        optimizer.zero_grad()
+        out["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.grad_clip)
+        optimizer.step()
+        updater.step()
+
+    for _ in range(20):
+        step()
+    windows = []
+    for _ in range(repeats):
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        for _ in range(updates):
+            step()
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        windows.append((time.perf_counter() - start) / updates)
+    seconds = statistics.median(windows)
+    return {"kind": "update", "setting": setting, "network": SETTINGS[setting], "algo": algo, "device": device,
+            "ms_per_update": 1e3 * seconds, "updates_per_s": 1 / seconds}
+
+
+def measure_loop(algo: str, device: str, frames: int) -> dict:
+    """Frames per second of a whole paper-regime training job on empty1 (after a 500-frame warm-up)."""
+    exploration = "thompson" if algo == "adfq" else "egreedy"
+    cfg = _config(f"algo={algo}", f"exploration={exploration}", f"frames={frames}", "logger=none",
+                  f"device={device}")
+    with tempfile.TemporaryDirectory() as out:
+        start = time.perf_counter()
+        state = train(cfg, Path(out))
+        seconds = time.perf_counter() - start
+    return {"kind": "loop", "setting": "empty1", "algo": algo, "device": device, "frames": state.frames,
+            "updates": state.updates, "evaluations": state.evaluations, "seconds": seconds,
+            "frames_per_s": state.frames / seconds}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--loop-frames", type=int, default=2000)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+
+    rows = []
+    print(f"{'network':<8}{'algo':<6}{'ms/update':>11}{'updates/s':>11}")
+    for setting in SETTINGS:
+        for algo in ("dqn", "ddqn", "adfq"):
+            row = measure_updates(setting, algo, args.device)
+            rows.append(row)
+            print(f"{row['network']:<8}{algo:<6}{row['ms_per_update']:>11.2f}{row['updates_per_s']:>11,.0f}",
+                  flush=True)
+    print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'frames/s':>10}")
+    for algo in ("dqn", "ddqn", "adfq"):
+        row = measure_loop(algo, args.device, args.loop_frames)
+        rows.append(row)
+        print(f"{algo:<40}{row['frames_per_s']:>10,.0f}", flush=True)
+
+    out = args.out or Path(__file__).parent / "results" / f"train_throughput_{args.device.split(':')[0]}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
+            "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None}
+    out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
