@@ -191,12 +191,7 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
                 updates_owed += cfg.updates_per_frame * batch.numel()
                 while updates_owed >= 1:
                     updates_owed -= 1
-                    losses = loss(buffer.sample())
-                    optimizer.zero_grad()
-                    losses["loss"].backward()
-                    torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.grad_clip)
-                    optimizer.step()
-                    target_updater.step()
+                    losses = update(loss, optimizer, target_updater, buffer.sample(), cfg.grad_clip)
                     state.updates += 1
                     if logger and state.updates % 100 == 0:
                         logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
@@ -215,6 +210,18 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
     if logger:
         logger.log_scalar("train/frames_per_s", remaining / seconds, step=state.frames)
     return state
+
+
+def update(loss: LossModule, optimizer: torch.optim.Optimizer, target_updater: HardUpdate, batch,
+           grad_clip: float):
+    """One optimiser step on ``batch``: loss, backward, gradient-norm clipping, step, target bookkeeping."""
+    losses = loss(batch)
+    optimizer.zero_grad()
+    losses["loss"].backward()
+    torch.nn.utils.clip_grad_norm_(loss.parameters(), grad_clip)
+    optimizer.step()
+    target_updater.step()
+    return losses
 
 
 def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:

@@ -26,7 +26,7 @@ from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
 from aia.envs import make_env
-from aia.train import make_actor, make_loss, train
+from aia.train import make_actor, make_loss, train, update
 
 SETTINGS = {"empty1": "3x128", "small3": "3x256"}
 EXPERIMENTS = {"empty1": "paper_empty1", "small3": "paper_small3"}
@@ -50,12 +50,7 @@ def measure_updates(setting: str, algo: str, device: str, updates: int = 200, re
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
 
     def step():
-        out = loss(batch.clone())
-        optimizer.zero_grad()
-        out["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.grad_clip)
-        optimizer.step()
-        updater.step()
+        update(loss, optimizer, updater, batch.clone(), cfg.grad_clip)
 
     for _ in range(20):
         step()
