@@ -24,13 +24,13 @@ SMALL = ("env.max_steps=40", "warmup_frames=100", "logger=none", "eval.episodes=
 @pytest.mark.parametrize(
     "algo, exploration", [("dqn", "egreedy"), ("ddqn", "egreedy"), ("adfq", "egreedy"), ("adfq", "thompson")]
 )
-def test_each_algorithm_trains_without_nan(tmp_path, algo, exploration):
-    cfg = _config(f"algo={algo}", f"exploration={exploration}", "frames=400", *SMALL)
+def test_each_algorithm_trains_2000_frames_without_nan(tmp_path, algo, exploration):
+    cfg = _config(f"algo={algo}", f"exploration={exploration}", "frames=2000", "eval.every_episodes=5", *SMALL)
     state = train(cfg, tmp_path)
-    assert state.frames == 400 and state.episodes == 10 and state.updates == 301  # from frame 100 on
+    assert state.frames == 2000 and state.episodes == 50 and state.updates == 1901  # from frame 100 on
     assert len(state.eval_scores) == 10 and all(math.isfinite(s) for s in state.eval_scores)
     checkpoint = torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)
-    assert checkpoint["state"]["frames"] == 400
+    assert checkpoint["state"]["frames"] == 2000
     for value in checkpoint["actor"].values():
         assert torch.isfinite(value).all()
 
