@@ -28,6 +28,7 @@ from tqdm import tqdm
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import episode_scores, run_episodes
+from aia.losses import ADFQLoss
 from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, check_exploration, make_q_network
 from aia.modules.q_networks import make_qvalue_actor
 
@@ -67,10 +68,9 @@ def make_exploration(cfg: DictConfig, num_actions: int):
 def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:
     """DQN, Double DQN (TorchRL's DQNLoss) or ADFQ, with the discount of the config."""
     if cfg.algo.name == "adfq":
-        from aia.losses import ADFQLoss
-
         return ADFQLoss(actor, gamma=cfg.gamma, noise=cfg.algo.noise, var_min=cfg.algo.var_min,
-                        reward_var=cfg.algo.reward_var, loss_function=cfg.algo.loss_function)
+                        sd_max=cfg.algo.sd_max, reward_var=cfg.algo.reward_var,
+                        loss_function=cfg.algo.loss_function)
     loss = DQNLoss(actor, loss_function=cfg.algo.loss_function, delay_value=True,
                    double_dqn=cfg.algo.name == "ddqn", action_space="categorical")
     loss.make_value_estimator(gamma=cfg.gamma)

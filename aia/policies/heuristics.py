@@ -55,9 +55,9 @@ class BeliefPursuitPolicy:
     def choose(self, pose: Tensor, mean: Tensor, logdet: Tensor) -> Tensor:
         """``[B]`` action indices from ``pose [B, 3]``, ``mean [B, N, 4]`` and ``logdet [B, N]``."""
         worst = logdet.argmax(-1)
-        goal = mean[torch.arange(mean.shape[0], device=mean.device), worst, :2]  # [B, 2]
+        target = mean[torch.arange(mean.shape[0], device=mean.device), worst]  # [B, 4]
         # Aim at where the belief will be after the step.
-        goal = goal + self.dt * mean[torch.arange(mean.shape[0], device=mean.device), worst, 2:]
+        goal = target[:, :2] + self.dt * target[:, 2:]
         nxt = se2_step(pose[:, None, :], self.primitives[None], self.dt)  # [B, A, 3]
         delta = goal[:, None, :] - nxt[..., :2]
         distance = torch.linalg.vector_norm(delta, dim=-1)
