@@ -1,0 +1,255 @@
+"""``aia-log``: inspect aia run logs (MCAP files) from the shell.
+
+    aia-log summary RUN...                         topics, counts, time span, config, recorded episodes, scores
+    aia-log scalars RUN... --topic eval/score [--csv scores.csv]
+    aia-log plot 'outputs/multirun/**/run.mcap' --metric eval/score --group-by algo --window 4 --out curves.png
+    aia-log render RUN --episode last --out episode.gif        # or .png: a strip of --frames frames
+
+RUN arguments are files, folders (searched for ``*.mcap``) or globs. A run killed before it closed its log
+is read up to its last complete chunk and reported as truncated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from collections.abc import Sequence
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from aia.logging.curves import learning_curves
+from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
+
+RENDER_FORMATS = (".gif", ".png")
+SUMMARY_KEYS = ("algo", "exploration", "env.map", "env.num_targets", "seed", "frames")
+
+
+def _status(run: RunLog) -> str:
+    if run.complete and not run.skipped_chunks:
+        return "complete"
+    parts = [] if run.complete else [f"truncated: {len(run.messages)} messages recovered ({run.problem})"]
+    if run.skipped_chunks:
+        parts.append(f"{run.skipped_chunks} corrupt chunk(s) skipped")
+    return "; ".join(parts)
+
+
+def _stamp(seconds: float) -> str:
+    return datetime.fromtimestamp(seconds).strftime("%Y-%m-%d %H:%M:%S")
+
+
+def summary(run: RunLog) -> str:
+    """The text ``aia-log summary`` prints for one run."""
+    lines = [f"{run.path}  [{_status(run)}]"]
+    span = run.time_span()
+    if span:
+        lines.append(f"  time      {_stamp(span[0])} -> {_stamp(span[1])}  ({span[1] - span[0]:.1f} s)")
+    info = run.metadata.get("run", {})
+    config = [f"{key}={run.config_value(key)}" for key in SUMMARY_KEYS if run.config_value(key) is not None]
+    if config:
+        lines.append("  config    " + " ".join(config))
+    if "git_commit" in info:
+        dirty = " (uncommitted changes)" if info.get("git_dirty") == "true" else ""
+        lines.append(f"  code      git {info['git_commit'][:12]}{dirty}, torch {info.get('version.torch', '?')}, "
+                     f"torchrl {info.get('version.torchrl', '?')}")
+    lines.append(f"  metadata  {', '.join(run.metadata) or '-'};  attachments {', '.join(run.attachments) or '-'}")
+    lines.append("  topics")
+    counts = run.topic_counts()
+    width = max((len(t) for t in counts), default=5)
+    for topic, (schema, count) in counts.items():
+        lines.append(f"    {topic:<{width}}  {schema:<24} {count:>8}")
+    episodes = run.episodes()
+    if episodes:
+        lines.append(f"  episodes  {len(episodes)} recorded: {_short_list(episodes)}")
+    for topic in ("eval/score", "train/score"):
+        if topic in counts:
+            series = run.scalars(topic)
+            best = int(np.nanargmax(series.values)) if np.isfinite(series.values).any() else -1
+            lines.append(f"  {topic:<10}last {series.values[-1]:.1f} at frame {series.frames[-1]:.0f}; best "
+                         f"{series.values[best]:.1f} at frame {series.frames[best]:.0f}; {len(series.values)} values")
+    return "\n".join(lines)
+
+
+def _short_list(values: list[int], edge: int = 4) -> str:
+    if len(values) <= 2 * edge:
+        return ", ".join(map(str, values))
+    return ", ".join(map(str, values[:edge])) + ", ..., " + ", ".join(map(str, values[-edge:]))
+
+
+def scalar_rows(runs: Sequence[RunLog], topics: Sequence[str]) -> list[dict[str, object]]:
+    """Rows ``run, topic, frame, seconds (since the run's first message), value`` of every scalar message."""
+    rows = []
+    for run in runs:
+        span = run.time_span()
+        start = span[0] if span else 0.0
+        for topic in topics or run.scalar_topics():
+            series = run.scalars(topic)
+            for frame, seconds, value in zip(series.frames, series.times, series.values, strict=True):
+                rows.append({"run": str(run.path), "topic": topic.lstrip("/"),
+                             "frame": None if np.isnan(frame) else int(frame),
+                             "seconds": round(float(seconds - start), 3), "value": float(value)})
+    return rows
+
+
+def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: int, x_axis: str, out: Path,
+         title: str | None = None) -> list:
+    """Draw the learning curves (mean line, +-1 std band) of ``runs`` grouped by ``group_by`` into ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves = learning_curves(runs, metric, group_by, window)
+    figure, axes = plt.subplots(figsize=(7, 4.5), dpi=120)
+    for curve in curves:
+        x = curve.x if x_axis == "frame" else np.arange(1, len(curve.mean) + 1)
+        line, = axes.plot(x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
+        axes.fill_between(x, curve.mean - curve.std, curve.mean + curve.std, color=line.get_color(), alpha=0.2)
+    axes.set_xlabel("training frames" if x_axis == "frame" else "evaluation")
+    axes.set_ylabel(metric + (f" (moving average of {window})" if window > 1 else ""))
+    axes.set_title(title or metric)
+    axes.grid(alpha=0.3)
+    axes.legend(fontsize="small")
+    figure.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(out)
+    plt.close(figure)
+    return curves
+
+
+def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: float) -> tuple[int, int]:
+    """Write a recorded episode as a GIF (every step) or a PNG strip of ``frames`` evenly spaced steps;
+    returns the image's (width, height)."""
+    from PIL import Image
+
+    from aia.envs.render import render_frame
+
+    if out.suffix.lower() not in RENDER_FORMATS:
+        raise ValueError(f"--out {out}: the format must be one of {list(RENDER_FORMATS)}")
+    if frames < 1:
+        raise ValueError(f"--frames={frames} must be >= 1")
+    if fps <= 0:
+        raise ValueError(f"--fps={fps} must be > 0")
+    info, steps = run.episode(episode if episode in ("first", "last") else _episode_index(episode))
+    if not steps:
+        raise ValueError(f"{run.path}: recorded episode {info.episode} has no frames")
+    if out.suffix.lower() == ".png":
+        steps = [steps[i] for i in np.unique(np.linspace(0, len(steps) - 1, frames).round().astype(int))]
+
+    def draw(step) -> np.ndarray:
+        return render_frame(info.grid_map, step.robot_pose, step.targets, step.belief_mean, step.belief_cov,
+                            info.sensor_range, info.fov_deg, size=size, observed=step.observed)
+
+    images = [Image.fromarray(draw(step)) for step in steps]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.suffix.lower() == ".gif":
+        images[0].save(out, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
+        return images[0].size
+    strip = Image.new("RGB", (size * len(images), size))
+    for i, image in enumerate(images):
+        strip.paste(image, (i * size, 0))
+    strip.save(out)
+    return strip.size
+
+
+def _episode_index(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"--episode {text!r} must be an episode index, 'first' or 'last'") from None
+
+
+def _read_all(patterns: Sequence[str]) -> list[RunLog]:
+    runs = [read_run(path) for path in find_runs(list(patterns))]
+    for run in runs:
+        if not run.complete or run.skipped_chunks:
+            print(f"warning: {run.path}: {_status(run)}", file=sys.stderr)
+    return runs
+
+
+def make_parser() -> argparse.ArgumentParser:
+    """The ``aia-log`` argument parser."""
+    parser = argparse.ArgumentParser(prog="aia-log", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n".join(__doc__.split("\n")[2:7]))
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    runs_help = "MCAP files, folders or globs (quote '**' patterns)"
+
+    cmd = commands.add_parser("summary", help="topics, message counts, time span, config and scores of runs")
+    cmd.add_argument("runs", nargs="+", help=runs_help)
+
+    cmd = commands.add_parser("scalars", help="scalar series as a table on stdout or a CSV file")
+    cmd.add_argument("runs", nargs="+", help=runs_help)
+    cmd.add_argument("--topic", action="append", default=[], help="scalar topic (repeatable; default: all)")
+    cmd.add_argument("--csv", type=Path, help="write the rows to this CSV file instead of printing them")
+
+    cmd = commands.add_parser("plot", help="learning curves across runs: mean and std band per group")
+    cmd.add_argument("runs", nargs="+", help=runs_help)
+    cmd.add_argument("--metric", default="eval/score", help="scalar topic to plot (default: eval/score)")
+    cmd.add_argument("--group-by", action="append", default=[], metavar="KEY",
+                     help="config key to group runs by, e.g. algo or env.num_targets (repeatable)")
+    cmd.add_argument("--window", type=int, default=1, help="moving-average window per run (paper: 4)")
+    cmd.add_argument("--x", dest="x_axis", choices=("frame", "evaluation"), default="frame", help="x axis")
+    cmd.add_argument("--title", help="figure title (default: the metric)")
+    cmd.add_argument("--out", type=Path, default=Path("curves.png"), help="PNG to write (default: curves.png)")
+
+    cmd = commands.add_parser("render", help="a recorded episode as a GIF or a PNG strip of frames")
+    cmd.add_argument("run", help="one MCAP file")
+    cmd.add_argument("--episode", default="last", help="recorded episode index, 'first' or 'last' (default)")
+    cmd.add_argument("--out", type=Path, default=Path("episode.gif"), help="episode.gif or a .png strip")
+    cmd.add_argument("--size", type=int, default=384, help="pixels per frame side (default: 384)")
+    cmd.add_argument("--frames", type=int, default=6, help="frames in a PNG strip (default: 6)")
+    cmd.add_argument("--fps", type=float, default=10.0, help="GIF frame rate (default: 10)")
+    return parser
+
+
+def run_command(args: argparse.Namespace) -> None:
+    """Execute a parsed ``aia-log`` command."""
+    if args.command == "summary":
+        print("\n\n".join(summary(run) for run in _read_all(args.runs)))
+    elif args.command == "scalars":
+        rows = scalar_rows(_read_all(args.runs), args.topic)
+        if args.csv:
+            args.csv.parent.mkdir(parents=True, exist_ok=True)
+            with open(args.csv, "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=["run", "topic", "frame", "seconds", "value"])
+                writer.writeheader()
+                writer.writerows(rows)
+            print(f"{len(rows)} rows written to {args.csv}")
+        else:
+            print(f"{'topic':<20} {'frame':>10} {'seconds':>10} {'value':>14}  run")
+            for row in rows:
+                frame = "" if row["frame"] is None else row["frame"]
+                print(f"{row['topic']:<20} {frame:>10} {row['seconds']:>10.3f} {row['value']:>14.6g}  {row['run']}")
+    elif args.command == "plot":
+        if args.window < 1:
+            raise ValueError(f"--window={args.window} must be >= 1")
+        if args.out.suffix.lower() != ".png":
+            raise ValueError(f"--out {args.out}: plot writes a .png file")
+        curves = plot(_read_all(args.runs), args.metric, args.group_by, args.window, args.x_axis, args.out,
+                      args.title)
+        for curve in curves:
+            print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "
+                  f"+- {curve.std[-1]:.1f}")
+        print(f"plot written to {args.out}")
+    elif args.command == "render":
+        width, height = render(read_run(args.run), args.episode, args.out, args.size, args.frames, args.fps)
+        print(f"{args.out} written ({width} x {height} pixels)")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``aia-log``; returns the exit status (2 with a one-line message on bad input)."""
+    parser = make_parser()
+    args = parser.parse_args(argv)
+    try:
+        run_command(args)
+    except (RunLogError, ValueError, OSError) as err:
+        print(f"aia-log: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,215 @@
+"""Read aia run logs back: whole, truncated (a killed run) or with corrupt chunks.
+
+One sequential pass over the records (``mcap``'s ``StreamReader``) serves every case: a complete file
+ends with its footer; a file cut short (no footer) yields every complete chunk before the cut; a chunk
+whose CRC or compression is broken is skipped and counted. A file that is not MCAP raises
+:class:`RunLogError` with a one-line reason.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from mcap.exceptions import InvalidMagic
+from mcap.reader import breakup_chunk
+from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+
+from aia.logging import schemas
+from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, SceneFrame, WorldInfo, parse_frame, parse_world
+
+
+class RunLogError(ValueError):
+    """A path that cannot be read as an aia run log (missing, unreadable, not MCAP)."""
+
+
+@dataclass
+class LoggedMessage:
+    """One message of a run log."""
+
+    topic: str
+    schema: str
+    log_time: int
+    data: bytes
+
+
+@dataclass
+class ScalarSeries:
+    """The messages of one scalar topic, in log-time order."""
+
+    frames: np.ndarray   # float (NaN where the message carried no frame)
+    times: np.ndarray    # seconds since the epoch
+    values: np.ndarray   # float (NaN for a logged non-finite value)
+
+
+@dataclass
+class RunLog:
+    """The decoded content of one MCAP run log."""
+
+    path: Path
+    messages: list[LoggedMessage]
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: dict[str, bytes] = field(default_factory=dict)
+    complete: bool = True          # the footer was read
+    skipped_chunks: int = 0        # chunks dropped for a bad CRC or a broken compression
+    problem: str | None = None     # why reading stopped before the footer
+
+    def topic_counts(self) -> dict[str, tuple[str, int]]:
+        """``topic -> (schema, message count)`` in order of first appearance."""
+        counts = Counter(m.topic for m in self.messages)
+        schemas_of = {m.topic: m.schema for m in self.messages}
+        return {topic: (schemas_of[topic], counts[topic]) for topic in dict.fromkeys(m.topic for m in self.messages)}
+
+    def time_span(self) -> tuple[float, float] | None:
+        """First and last log time in seconds, or None for a log without messages."""
+        if not self.messages:
+            return None
+        return self.messages[0].log_time / 1e9, self.messages[-1].log_time / 1e9
+
+    def scalar_topics(self) -> list[str]:
+        """Topics holding ``aia.Scalar`` messages."""
+        return [t for t, (schema, _) in self.topic_counts().items() if schema == schemas.SCALAR]
+
+    def scalars(self, topic: str) -> ScalarSeries:
+        """The series of a scalar topic (a leading ``/`` is ignored); ValueError naming the known topics."""
+        topic = self._scalar_topic(topic)
+        decoded = [(json.loads(m.data), m.log_time) for m in self.messages if m.topic == topic]
+        return ScalarSeries(
+            frames=np.array([np.nan if d.get("frame") is None else d["frame"] for d, _ in decoded], dtype=float),
+            times=np.array([t / 1e9 for _, t in decoded]),
+            values=np.array([np.nan if d["value"] is None else d["value"] for d, _ in decoded], dtype=float),
+        )
+
+    def _scalar_topic(self, topic: str) -> str:
+        known = self.scalar_topics()
+        for candidate in (topic, topic.lstrip("/")):
+            if candidate in known:
+                return candidate
+        raise ValueError(f"{self.path}: no scalar topic {topic!r}; it has {known}")
+
+    def config(self) -> dict[str, Any]:
+        """The run's resolved config (attachment ``config.yaml``), or ``{}`` when it was not logged."""
+        data = self.attachments.get("config.yaml")
+        return yaml.safe_load(data) or {} if data else {}
+
+    def config_value(self, key: str) -> Any:
+        """The value at dotted ``key`` in the config; a group (``algo``) reads as its ``name`` entry.
+        Falls back to metadata ``run`` entries (``seed``, ``git_commit`` ...); None when absent."""
+        node: Any = self.config()
+        for part in key.split("."):
+            if not isinstance(node, dict) or part not in node:
+                return self.metadata.get("run", {}).get(key)
+            node = node[part]
+        return node.get("name", node) if isinstance(node, dict) else node
+
+    def episodes(self) -> list[int]:
+        """Indices of the recorded episodes, in recording order."""
+        return [parse_world(m.data).episode for m in self.messages if m.topic == WORLD_TOPIC]
+
+    def episode(self, which: int | str = "last") -> tuple[WorldInfo, list[SceneFrame]]:
+        """The map and the frames of a recorded episode: its index, ``"first"`` or ``"last"``."""
+        starts = [i for i, m in enumerate(self.messages) if m.topic == WORLD_TOPIC]
+        if not starts:
+            raise ValueError(f"{self.path}: no recorded episode (no {WORLD_TOPIC} messages)")
+        worlds = [parse_world(self.messages[i].data) for i in starts]
+        if which in ("first", "last"):
+            pick = 0 if which == "first" else len(starts) - 1
+        else:
+            indices = [w.episode for w in worlds]
+            if int(which) not in indices:
+                raise ValueError(f"{self.path}: no recorded episode {which}; recorded: {indices}, 'first', 'last'")
+            pick = indices.index(int(which))
+        info = worlds[pick]
+        end = starts[pick + 1] if pick + 1 < len(starts) else len(self.messages)
+        transforms: dict[int, bytes] = {}
+        frames = []
+        for message in self.messages[starts[pick]:end]:
+            if message.topic == TF_TOPIC:
+                transforms[message.log_time] = message.data
+            elif message.topic == SCENE_TOPIC and message.log_time in transforms:
+                frame = parse_frame(transforms.pop(message.log_time), message.data)
+                if frame.episode == info.episode:
+                    frames.append(frame)
+        return info, frames
+
+
+def read_run(path: str | Path) -> RunLog:
+    """Read every message, metadata record and attachment of the MCAP file at ``path``."""
+    path = Path(path)
+    if not path.is_file():
+        raise RunLogError(f"{path}: no such file")
+    try:
+        stream = open(path, "rb")  # noqa: SIM115  (closed below)
+    except OSError as err:
+        raise RunLogError(f"{path}: cannot be read ({err.strerror})") from None
+    with stream:
+        return _read_records(path, stream)
+
+
+def _read_records(path: Path, stream) -> RunLog:
+    schema_names: dict[int, str] = {}
+    channels: dict[int, tuple[str, int]] = {}
+    run = RunLog(path, messages=[], complete=False)
+    records = StreamReader(stream, emit_chunks=True).records
+
+    def take(record) -> None:
+        if isinstance(record, Schema):
+            schema_names[record.id] = record.name
+        elif isinstance(record, Channel):
+            channels[record.id] = (record.topic, record.schema_id)
+        elif isinstance(record, Message) and record.channel_id in channels:
+            topic, schema_id = channels[record.channel_id]
+            run.messages.append(LoggedMessage(topic, schema_names.get(schema_id, ""), record.log_time, record.data))
+
+    try:
+        for record in records:
+            if isinstance(record, Chunk):
+                try:
+                    inner = breakup_chunk(record, validate_crc=True)
+                except Exception:  # noqa: BLE001  (a bad CRC or a broken compression: skip the chunk)
+                    run.skipped_chunks += 1
+                    continue
+                for item in inner:
+                    take(item)
+            elif isinstance(record, Metadata):
+                run.metadata[record.name] = dict(record.metadata)
+            elif isinstance(record, Attachment):
+                run.attachments[record.name] = bytes(record.data)
+            elif isinstance(record, Footer):
+                run.complete = True
+            else:
+                take(record)
+    except InvalidMagic:
+        if not run.messages and not run.metadata:
+            raise RunLogError(f"{path}: not an MCAP file (bad magic bytes)") from None
+        run.problem = "bad magic bytes at the end"
+    except Exception as err:  # noqa: BLE001  (a cut or damaged record surfaces as struct, EOF, MCAP... errors)
+        if not schema_names and not channels and not run.metadata:
+            raise RunLogError(f"{path}: not a readable MCAP file ({type(err).__name__})") from None
+        run.problem = f"file ends early or is damaged ({type(err).__name__})"
+    run.messages.sort(key=lambda m: m.log_time)
+    return run
+
+
+def find_runs(patterns: list[str]) -> list[Path]:
+    """MCAP files named by ``patterns``: files, folders (searched recursively) or globs (``**`` allowed)."""
+    found: list[Path] = []
+    for pattern in patterns:
+        matches = [Path(p) for p in sorted(glob.glob(pattern, recursive=True))] or [Path(pattern)]
+        for match in matches:
+            if match.is_dir():
+                found.extend(sorted(match.rglob("*.mcap")))
+            elif match.exists():
+                found.append(match)
+            else:
+                raise RunLogError(f"{pattern}: no such file, folder or glob match")
+    if not found:
+        raise RunLogError(f"no .mcap files under {patterns}")
+    return list(dict.fromkeys(found))

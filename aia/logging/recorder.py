@@ -1,0 +1,101 @@
+"""``SceneRecorder``: a TorchRL transform that writes the Foxglove scene of every step of chosen episodes."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs.transforms import Transform
+
+from aia.logging import schemas
+from aia.logging.mcap_logger import MCAPLogger
+from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, FrameEncoder, WorldInfo, ellipses, world_message
+
+_KEYS = ("robot_pose", "target_state", "belief_mean", "belief_cov", "observed")
+
+
+class SceneRecorder(Transform):
+    """Record one world of a tracking env into an :class:`MCAPLogger` as Foxglove scenes.
+
+    The recorder is idle until :meth:`record` arms it; the next reset then writes the map (``/world``) and
+    the first scene, every step writes ``/tf`` and ``/scene`` (:mod:`aia.logging.scenes`), and the episode
+    of world ``world`` ending disarms it. It reads the env's raw keys (robot pose, true targets, belief) and
+    changes nothing in the tensordict, so it can sit anywhere in the env's transforms.
+
+    Args:
+        logger: where the scenes go.
+        world: index of the recorded world in the env's batch.
+        sigma: the belief ellipses are drawn at this many standard deviations.
+    """
+
+    def __init__(self, logger: MCAPLogger, world: int = 0, sigma: float = 2.0) -> None:
+        super().__init__(in_keys=list(_KEYS), out_keys=[])
+        if world < 0:
+            raise ValueError(f"world={world} must be >= 0")
+        self.logger = logger
+        self.world = world
+        self.sigma = sigma
+        self._armed: tuple[int, int] | None = None      # (episode, frame) of the next episode to record
+        self._recording: tuple[int, int] | None = None  # (episode, frame) of the episode being recorded
+        self._step_index = 0
+        self._encoder: FrameEncoder | None = None
+
+    @property
+    def recording(self) -> bool:
+        """Whether an episode is being written now."""
+        return self._recording is not None
+
+    def record(self, episode: int, frame: int) -> None:
+        """Record the next episode of the world, labelled with ``episode`` and the training ``frame``."""
+        self._armed = (episode, frame)
+
+    def _env_config(self):
+        env = self.parent.base_env if self.parent is not None else None
+        if env is None or not hasattr(env, "config"):
+            raise RuntimeError("SceneRecorder must be a transform of a TargetTrackingEnv")
+        if self.world >= env.batch_size[0]:
+            raise ValueError(f"world={self.world} is out of range for an env of {env.batch_size[0]} worlds")
+        return env
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        if self._armed is None:
+            return tensordict_reset
+        env = self._env_config()
+        reset_mask = tensordict.get("_reset", None) if tensordict is not None else None
+        if reset_mask is not None and not bool(reset_mask.reshape(-1)[self.world]):
+            return tensordict_reset  # a partial reset that leaves the recorded world alone
+        self._recording, self._armed, self._step_index = self._armed, None, 0
+        sensor = env.config.sensor
+        self._encoder = FrameEncoder(sensor.range, sensor.fov_deg, self.sigma)
+        info = WorldInfo(env.map, sensor.range, sensor.fov_deg, env.num_targets, *self._recording)
+        run = self.logger.experiment
+        stamp = run.now()
+        run.write(run.channel(WORLD_TOPIC, schemas.SCENE_UPDATE), world_message(info, stamp), stamp)
+        self._write_frame(tensordict_reset, stamp)
+        return tensordict_reset
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        if self._recording is not None:
+            self._step_index += 1
+            self._write_frame(next_tensordict, self.logger.experiment.now())
+            if bool(next_tensordict.get("done").reshape(-1)[self.world]):
+                self._recording = None
+        return next_tensordict
+
+    def _write_frame(self, tensordict: TensorDictBase, stamp: int) -> None:
+        pose, targets, mean, cov, observed = (tensordict.get(key)[self.world] for key in _KEYS)
+        num_targets = targets.shape[0]
+        values = torch.cat((pose.reshape(-1), targets[:, :2].reshape(-1), mean[:, :2].reshape(-1),
+                            cov[:, :2, :2].reshape(-1)))
+        values = torch.nan_to_num(values.to(torch.float64)).numpy(force=True)  # JSON has no NaN
+        targets_xy = values[3:3 + 2 * num_targets].reshape(-1, 2)
+        mean_xy = values[3 + 2 * num_targets:3 + 4 * num_targets].reshape(-1, 2)
+        cov_xy = values[3 + 4 * num_targets:].reshape(-1, 2, 2)
+        episode, frame = self._recording
+        time = self._step_index * self.parent.base_env.config.dt
+        tf, scene = self._encoder.encode(
+            stamp, episode, frame, self._step_index, time, values[:3].tolist(),
+            targets_xy.tolist(), mean_xy.tolist(), ellipses(cov_xy, self.sigma).tolist(), observed.tolist(),
+        )
+        run = self.logger.experiment
+        run.write(run.channel(TF_TOPIC, schemas.FRAME_TRANSFORM), tf, stamp)
+        run.write(run.channel(SCENE_TOPIC, schemas.SCENE_UPDATE), scene, stamp)

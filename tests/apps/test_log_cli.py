@@ -1,0 +1,96 @@
+"""aia-log: summary, scalars, plot and render on small logs written here."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from aia.apps.log_cli import main
+from aia.envs import make_env
+from aia.logging import MCAPLogger, SceneRecorder
+
+
+def _fake_run(folder, algo, seed, scores):
+    logger = MCAPLogger("exp", folder)
+    logger.log_hparams({"algo": {"name": algo}, "seed": seed, "env": {"map": "empty"}})
+    for i, score in enumerate(scores):
+        logger.log_scalar("eval/score", score, step=100 * (i + 1))
+    logger.close()
+    return folder / "run.mcap"
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("recorded")
+    logger = MCAPLogger("exp", folder)
+    env = make_env("empty1", batch_size=2, seed=0, overrides=["max_steps=9"])
+    recorder = SceneRecorder(logger)
+    env.append_transform(recorder)
+    recorder.record(episode=2, frame=50)
+    env.rollout(9, break_when_any_done=False)
+    logger.log_scalar("eval/score", 12.5, step=50)
+    logger.close()
+    return folder / "run.mcap"
+
+
+def test_summary_lists_topics_episodes_and_scores(recorded, capsys):
+    assert main(["summary", str(recorded)]) == 0
+    out = capsys.readouterr().out
+    assert "[complete]" in out and "/scene" in out and "foxglove.SceneUpdate" in out
+    assert "1 recorded: 2" in out and "last 12.5 at frame 50" in out
+
+
+def test_summary_of_a_truncated_file_says_so(recorded, tmp_path, capsys):
+    data = recorded.read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[: len(data) // 2])
+    assert main(["summary", str(tmp_path / "cut.mcap")]) == 0
+    captured = capsys.readouterr()
+    assert "truncated:" in captured.out and "messages recovered" in captured.out
+    assert "warning:" in captured.err
+
+
+def test_a_file_that_is_not_mcap_gets_a_one_line_error(tmp_path, capsys):
+    (tmp_path / "x.mcap").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    assert main(["summary", str(tmp_path / "x.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("aia-log: error:") and "not an MCAP file" in err
+
+
+def test_scalars_to_csv(tmp_path, capsys):
+    run = _fake_run(tmp_path / "r", "dqn", 0, [1.0, 2.5])
+    assert main(["scalars", str(run), "--topic", "eval/score", "--csv", str(tmp_path / "s.csv")]) == 0
+    with open(tmp_path / "s.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["topic"], r["frame"], float(r["value"])) for r in rows] == [("eval/score", "100", 1.0),
+                                                                         ("eval/score", "200", 2.5)]
+    assert "2 rows written" in capsys.readouterr().out
+    assert main(["scalars", str(run), "--topic", "eval/nothing"]) == 2
+
+
+def test_plot_aggregates_runs_per_group(tmp_path, capsys):
+    _fake_run(tmp_path / "m/0", "adfq", 0, [1.0, 2.0, 3.0])
+    _fake_run(tmp_path / "m/1", "adfq", 1, [3.0, 4.0, 8.0])
+    _fake_run(tmp_path / "m/2", "adfq", 2, [5.0, 9.0, 10.0])
+    _fake_run(tmp_path / "m/3", "dqn", 0, [0.0, 0.0, 1.0])
+    out = tmp_path / "curves.png"
+    assert main(["plot", str(tmp_path / "m"), "--group-by", "algo", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    final = np.array([3.0, 8.0, 10.0])
+    assert f"algo=adfq: 3 runs, final eval/score {final.mean():.1f} +- {final.std():.1f}" in printed
+    assert "algo=dqn: 1 runs" in printed
+    assert Image.open(out).format == "PNG"
+    assert main(["plot", str(tmp_path / "m"), "--out", str(tmp_path / "c.jpg")]) == 2
+
+
+def test_render_png_strip_and_gif(recorded, tmp_path, capsys):
+    assert main(["render", str(recorded), "--out", str(tmp_path / "e.png"), "--frames", "4", "--size", "64"]) == 0
+    assert Image.open(tmp_path / "e.png").size == (4 * 64, 64)
+    assert main(["render", str(recorded), "--episode", "2", "--out", str(tmp_path / "e.gif"), "--size", "80"]) == 0
+    gif = Image.open(tmp_path / "e.gif")
+    assert gif.size == (80, 80) and gif.n_frames == 10
+    assert main(["render", str(recorded), "--episode", "9", "--out", str(tmp_path / "x.gif")]) == 2
+    assert "no recorded episode 9; recorded: [2]" in capsys.readouterr().err
+    assert main(["render", str(recorded), "--out", str(tmp_path / "x.mp4")]) == 2

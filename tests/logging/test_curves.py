@@ -1,0 +1,28 @@
+"""Learning curves: moving averages and the mean and std over runs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aia.logging.curves import aggregate, moving_average
+
+
+def test_moving_average_is_trailing_with_a_short_start():
+    assert moving_average(np.array([1.0, 2.0, 3.0, 4.0, 10.0]), 2).tolist() == [1.0, 1.5, 2.5, 3.5, 7.0]
+    assert moving_average(np.array([1.0, 5.0]), 1).tolist() == [1.0, 5.0]
+    with pytest.raises(ValueError, match="window=0"):
+        moving_average(np.ones(3), 0)
+
+
+def test_aggregate_three_runs_of_different_lengths():
+    runs = [(np.array([10.0, 20.0, 30.0]), np.array([1.0, 2.0, 3.0])),
+            (np.array([10.0, 20.0, 30.0]), np.array([3.0, 4.0, 8.0])),
+            (np.array([12.0, 22.0]), np.array([5.0, 9.0]))]
+    curve = aggregate("dqn", runs)
+    assert curve.runs.tolist() == [3, 3, 2]
+    assert curve.mean.tolist() == pytest.approx([3.0, 5.0, 5.5])
+    assert curve.std.tolist() == pytest.approx([np.std([1, 3, 5]), np.std([2, 4, 9]), np.std([3, 8])])
+    assert curve.x.tolist() == pytest.approx([32 / 3, 62 / 3, 30.0])
+    smoothed = aggregate("dqn", runs, window=2)
+    assert smoothed.mean[1] == pytest.approx(np.mean([1.5, 3.5, 7.0]))

@@ -1,0 +1,84 @@
+"""read_run: complete logs, logs cut at any byte, corrupt chunks, and files that are not MCAP."""
+
+from __future__ import annotations
+
+import pytest
+
+from aia.logging import MCAPLogger, RunLogError, find_runs, read_run
+
+
+def _chunked_log(path, chunks=6, per_chunk=40):
+    """A log whose every ``per_chunk`` scalars end in a flush (one chunk each); returns the file size after
+    each flush."""
+    logger = MCAPLogger("exp", path, flush_interval_s=3600)
+    logger.log_hparams({"algo": {"name": "dqn"}, "seed": 1})
+    sizes = []
+    for chunk in range(chunks):
+        for i in range(per_chunk):
+            logger.log_scalar("eval/score", float(chunk * per_chunk + i), step=chunk * per_chunk + i)
+        logger.flush()
+        sizes.append((path / "run.mcap").stat().st_size)
+    logger.close()
+    return (path / "run.mcap").read_bytes(), sizes
+
+
+def test_complete_log(tmp_path):
+    data, _ = _chunked_log(tmp_path)
+    run = read_run(tmp_path / "run.mcap")
+    assert run.complete and run.problem is None and run.skipped_chunks == 0
+    assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(240)]
+    assert run.config_value("algo") == "dqn" and run.config_value("seed") == 1
+    assert run.config_value("algo.name") == "dqn" and run.config_value("nothing.here") is None
+
+
+@pytest.mark.parametrize("fraction", [0.15, 0.4, 0.55, 0.8, 0.97, 0.999])
+def test_a_cut_file_yields_every_chunk_before_the_cut(tmp_path, fraction):
+    data, sizes = _chunked_log(tmp_path)
+    cut = int(len(data) * fraction)
+    (tmp_path / "cut.mcap").write_bytes(data[:cut])
+    run = read_run(tmp_path / "cut.mcap")
+    flushed = sum(size <= cut for size in sizes)  # chunks whose records (and indexes) lie before the cut
+    values = run.scalars("eval/score").values.tolist() if "eval/score" in run.scalar_topics() else []
+    # the chunk in progress at the cut counts too when the cut falls after it, among its index records
+    assert len(values) in (40 * flushed, 40 * (flushed + 1))
+    assert values == [float(i) for i in range(len(values))]
+    assert not run.complete and "ends early" in run.problem
+
+
+def test_a_corrupt_chunk_is_skipped_and_counted(tmp_path):
+    data, sizes = _chunked_log(tmp_path)
+    middle = sizes[1] + 80  # the third chunk starts at sizes[1]; its compressed records after a 61-byte header
+    damaged = bytearray(data)
+    damaged[middle:middle + 8] = bytes(8)
+    (tmp_path / "bad.mcap").write_bytes(bytes(damaged))
+    run = read_run(tmp_path / "bad.mcap")
+    assert run.skipped_chunks == 1
+    assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(240) if not 80 <= i < 120]
+
+
+def test_files_that_are_not_logs(tmp_path):
+    (tmp_path / "notes.mcap").write_text("hello, this is not a log\n" * 10)
+    with pytest.raises(RunLogError, match="not an MCAP file"):
+        read_run(tmp_path / "notes.mcap")
+    (tmp_path / "empty.mcap").write_bytes(b"")
+    with pytest.raises(RunLogError, match="empty.mcap: not a readable MCAP file"):
+        read_run(tmp_path / "empty.mcap")
+    with pytest.raises(RunLogError, match="no such file"):
+        read_run(tmp_path / "missing.mcap")
+
+
+def test_find_runs_expands_folders_and_globs(tmp_path):
+    for name in ("a/0", "a/1", "b/0"):
+        MCAPLogger("exp", tmp_path / name).close()
+    assert len(find_runs([str(tmp_path / "a")])) == 2
+    assert len(find_runs([str(tmp_path / "**" / "run.mcap")])) == 3
+    assert len(find_runs([str(tmp_path / "a"), str(tmp_path / "a/0/run.mcap")])) == 2  # no duplicates
+    with pytest.raises(RunLogError, match="nothing"):
+        find_runs([str(tmp_path / "nothing*")])
+
+
+def test_unknown_scalar_topic_names_the_known_ones(tmp_path):
+    _chunked_log(tmp_path, chunks=1)
+    with pytest.raises(ValueError, match=r"no scalar topic 'eval/scor'; it has \['eval/score'\]"):
+        read_run(tmp_path / "run.mcap").scalars("eval/scor")
+    assert len(read_run(tmp_path / "run.mcap").scalars("/eval/score").values) == 40
