@@ -28,6 +28,7 @@ from tqdm import tqdm
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import episode_scores, run_episodes
+from aia.logging import MCAPLogger, SceneRecorder
 from aia.losses import ADFQLoss
 from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, check_exploration, make_q_network
 from aia.modules.q_networks import make_qvalue_actor
@@ -78,12 +79,31 @@ def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:
 
 
 def make_logger(cfg: DictConfig, out_dir: Path) -> Logger | None:
-    """TorchRL logger of the run (``logger=csv`` or ``logger=none``)."""
+    """TorchRL logger of the run (``logger=mcap``, ``logger=csv`` or ``logger=none``); it gets the config."""
     if cfg.logger.name == "none":
         return None
     if cfg.logger.name == "csv":
-        return CSVLogger(exp_name="csv", log_dir=str(out_dir))
-    raise ValueError(f"logger={cfg.logger.name!r} is not one of ['csv', 'none']")
+        logger = CSVLogger(exp_name="csv", log_dir=str(out_dir))
+    elif cfg.logger.name == "mcap":
+        logger = MCAPLogger(
+            exp_name=f"{cfg.algo.name}-{cfg.exploration.name}-seed{cfg.seed}", log_dir=out_dir,
+            file_name=cfg.logger.file, compression=cfg.logger.compression, chunk_size=cfg.logger.chunk_size,
+            flush_interval_s=cfg.logger.flush_interval_s,
+            run_metadata={"seed": cfg.seed, "algo": cfg.algo.name, "exploration": cfg.exploration.name},
+        )
+    else:
+        raise ValueError(f"logger={cfg.logger.name!r} is not one of ['mcap', 'csv', 'none']")
+    logger.log_hparams(cfg)
+    return logger
+
+
+def make_recorder(cfg: DictConfig, logger: Logger | None, eval_env) -> SceneRecorder | None:
+    """The scene recorder on the evaluation env when the MCAP logger records episodes, else None."""
+    if not isinstance(logger, MCAPLogger) or cfg.logger.record_every_evaluations < 1:
+        return None
+    recorder = SceneRecorder(logger)
+    eval_env.append_transform(recorder)
+    return recorder
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -120,8 +140,17 @@ def save_checkpoint(path: Path, cfg: DictConfig, state: TrainingState, actor, lo
 
 
 def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
-    """Run one training job; returns the final counters (metrics go to the logger)."""
+    """Run one training job; returns the final counters (metrics go to the logger, closed on any exit)."""
     check_config(cfg)
+    logger = make_logger(cfg, out_dir)
+    try:
+        return _train(cfg, out_dir, logger)
+    finally:
+        if logger:
+            logger.close()
+
+
+def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingState:
     if cfg.get("threads"):
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
@@ -139,7 +168,7 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
     buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size, device=cfg.device), batch_size=cfg.batch_size)
     state = TrainingState()
-    logger = make_logger(cfg, out_dir)
+    recorder = make_recorder(cfg, logger, eval_env)
 
     if cfg.resume:
         checkpoint = torch.load(cfg.resume, weights_only=False)
@@ -183,6 +212,8 @@ def train(cfg: DictConfig, out_dir: Path) -> TrainingState:
                 if logger:
                     logger.log_scalar("train/score", score, step=state.frames)
                 if state.episodes % cfg.eval.every_episodes == 0:
+                    if recorder and state.evaluations % cfg.logger.record_every_evaluations == 0:
+                        recorder.record(episode=state.episodes, frame=state.frames)
                     evaluate(eval_env, eval_policy, state, logger)
                     bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", **_exploration_status(exploration))
             running_score[done] = 0.0
@@ -232,6 +263,11 @@ def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
     if logger:
         logger.log_scalar("eval/score", scores.mean().item(), step=state.frames)
         logger.log_scalar("eval/score_std", scores.std(correction=0).item(), step=state.frames)
+        if isinstance(logger, MCAPLogger):
+            logger.log_text(f"evaluation {state.evaluations} after {state.episodes} training episodes "
+                            f"({state.frames} frames): score {scores.mean().item():.1f} "
+                            f"+- {scores.std(correction=0).item():.1f} over {scores.numel()} episodes")
+        logger.flush()  # a run killed later keeps every evaluation so far
 
 
 def _exploration_status(exploration) -> dict[str, str]:

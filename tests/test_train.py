@@ -10,6 +10,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_module
 
+from aia.logging import read_run
 from aia.train import train
 
 
@@ -53,13 +54,32 @@ def test_resume_continues_the_counters(tmp_path):
 
 def test_csv_logger_writes_the_curves(tmp_path):
     # a quarter of an update per frame: updates are owed across batches
-    cfg = _config("frames=560", "updates_per_frame=0.25", *[o for o in SMALL if not o.startswith("logger")])
+    cfg = _config("frames=560", "updates_per_frame=0.25", "logger=csv",
+                  *[o for o in SMALL if not o.startswith("logger")])
     state = train(cfg, tmp_path)
     assert state.updates == 115  # frames 100..560 at 0.25 per frame
     scalars = tmp_path / "csv" / "scalars"
     curve = (scalars / "eval" / "score.csv").read_text().strip().splitlines()
     assert len(curve) == 14  # one evaluation per 40-step training episode
     assert len((scalars / "train" / "loss.csv").read_text().strip().splitlines()) == 1  # every 100 updates
+
+
+def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
+    cfg = _config("frames=560", "logger=mcap", "logger.record_every_evaluations=5",
+                  *[o for o in SMALL if not o.startswith("logger")])
+    state = train(cfg, tmp_path)
+    run = read_run(tmp_path / "run.mcap")
+    assert run.complete
+    scores = run.scalars("eval/score")
+    assert scores.values.tolist() == pytest.approx(state.eval_scores)
+    assert scores.frames.tolist() == [40.0 * k for k in range(1, 15)]
+    assert len(run.scalars("train/loss").values) == 4  # one per 100 updates
+    assert run.config_value("algo") == "dqn" and run.config_value("env.max_steps") == 40
+    assert run.metadata["run"]["seed"] == "0"
+    assert run.episodes() == [1, 6, 11]  # the first of every 5 evaluations, labelled by training episode
+    info, frames = run.episode("last")
+    assert info.frame == 440 and len(frames) == 41
+    assert run.topic_counts()["/log"] == ("foxglove.Log", 14)
 
 
 def test_bad_configs_name_the_field(tmp_path):

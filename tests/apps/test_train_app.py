@@ -1,11 +1,16 @@
-"""The aia-train app: parallel local sweeps (joblib) and the SLURM launcher config."""
+"""The aia-train app: parallel local sweeps (joblib), the SLURM launcher config, killed runs keep their log."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
+import time
 
+import pytest
 from hydra import compose, initialize_config_module
+
+from aia.logging import read_run
 
 
 def test_local_sweep_runs_every_job(tmp_path):
@@ -27,3 +32,27 @@ def test_slurm_launcher_config_composes():
     launcher = cfg.hydra.launcher
     assert launcher._target_.endswith("SlurmLauncher")
     assert launcher.partition == "cpu" and launcher.cpus_per_task == 2 and launcher.timeout_min == 720
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
+def test_a_killed_run_keeps_its_log(tmp_path, signum):
+    """SIGTERM closes the log cleanly; after SIGKILL every evaluation before the kill is still readable."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "aia.apps.train", "frames=1000000", "env.max_steps=40", "warmup_frames=100",
+         "eval.episodes=2", "threads=1", "logger.flush_interval_s=3600", f"hydra.run.dir={tmp_path}"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )
+    log = tmp_path / "run.mcap"
+    deadline = time.monotonic() + 240
+    scores = 0
+    while scores < 2 and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.5)
+        if log.exists():
+            run = read_run(log)
+            scores = len(run.scalars("eval/score").values) if "eval/score" in run.scalar_topics() else 0
+    assert scores >= 2, process.stderr.read() if process.poll() is not None else "no evaluation in 240 s"
+    process.send_signal(signum)
+    assert process.wait(timeout=60) == (143 if signum == signal.SIGTERM else -signal.SIGKILL)
+    run = read_run(log)
+    assert run.complete == (signum == signal.SIGTERM)
+    assert len(run.scalars("eval/score").values) >= scores
