@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import torch
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Transform
 
 from aia.logging import schemas
 from aia.logging.mcap_logger import MCAPLogger
-from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, FrameEncoder, WorldInfo, ellipses, world_message
+from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, FrameEncoder, WorldInfo, world_message
 
 _KEYS = ("robot_pose", "target_state", "belief_mean", "belief_cov", "observed")
 
@@ -81,21 +80,16 @@ class SceneRecorder(Transform):
                 self._recording = None
         return next_tensordict
 
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Outside an env (a replay buffer, a stored rollout): write the step if recording, pass it on."""
+        return self._call(tensordict)
+
     def _write_frame(self, tensordict: TensorDictBase, stamp: int) -> None:
-        pose, targets, mean, cov, observed = (tensordict.get(key)[self.world] for key in _KEYS)
-        num_targets = targets.shape[0]
-        values = torch.cat((pose.reshape(-1), targets[:, :2].reshape(-1), mean[:, :2].reshape(-1),
-                            cov[:, :2, :2].reshape(-1)))
-        values = torch.nan_to_num(values.to(torch.float64)).numpy(force=True)  # JSON has no NaN
-        targets_xy = values[3:3 + 2 * num_targets].reshape(-1, 2)
-        mean_xy = values[3 + 2 * num_targets:3 + 4 * num_targets].reshape(-1, 2)
-        cov_xy = values[3 + 4 * num_targets:].reshape(-1, 2, 2)
+        pose, targets, mean, cov, observed = (tensordict.get(key)[self.world].tolist() for key in _KEYS)
         episode, frame = self._recording
         time = self._step_index * self.parent.base_env.config.dt
-        tf, scene = self._encoder.encode(
-            stamp, episode, frame, self._step_index, time, values[:3].tolist(),
-            targets_xy.tolist(), mean_xy.tolist(), ellipses(cov_xy, self.sigma).tolist(), observed.tolist(),
-        )
+        tf, scene = self._encoder.encode(stamp, episode, frame, self._step_index, time, pose, targets, mean, cov,
+                                         observed)
         run = self.logger.experiment
         run.write(run.channel(TF_TOPIC, schemas.FRAME_TRANSFORM), tf, stamp)
         run.write(run.channel(SCENE_TOPIC, schemas.SCENE_UPDATE), scene, stamp)

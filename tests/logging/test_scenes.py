@@ -13,7 +13,7 @@ from aia.envs.maps import GridMap, load_map
 from aia.logging.scenes import (
     FrameEncoder,
     WorldInfo,
-    ellipses,
+    ellipse,
     occupied_rectangles,
     parse_frame,
     parse_world,
@@ -51,7 +51,7 @@ def test_ellipses_match_an_eigendecomposition():
     factors = rng.normal(size=(6, 2, 2))
     cov = factors @ factors.transpose(0, 2, 1) + 0.1 * np.eye(2)
     cov[0] = np.diag([4.0, 1.0])  # axis-aligned: major axis along x
-    result = ellipses(cov, sigma=2.0)
+    result = np.array([ellipse(c.tolist(), sigma=2.0) for c in cov])
     assert result[0] == pytest.approx([8.0, 4.0, 0.0])
     eigenvalues, eigenvectors = np.linalg.eigh(cov)
     assert result[:, 0] == pytest.approx(4 * np.sqrt(eigenvalues[:, 1]))
@@ -77,10 +77,13 @@ def test_world_message_round_trips_the_map_and_the_sensor():
 def test_frame_round_trip_and_foxglove_fields():
     encoder = FrameEncoder(sensor_range=10.0, fov_deg=120.0, sigma=2.0)
     cov = np.array([[[2.0, 0.5], [0.5, 1.0]], [[0.3, -0.1], [-0.1, 0.2]]])
+    full_cov = np.zeros((2, 4, 4))
+    full_cov[:, :2, :2] = cov
+    full_cov[:, 2:, 2:] = np.eye(2)
     tf, scene = encoder.encode(
         5_000_000_123, episode=3, frame=700, step=12, time=6.0, robot_pose=[1.0, 2.0, -2.5],
-        targets=[[3.0, 4.0], [5.5, 6.5]], belief_mean=[[3.1, 4.2], [5.0, 6.0]],
-        ellipse=ellipses(cov, 2.0).tolist(), observed=[True, False],
+        targets=[[3.0, 4.0, 0.5, 0.5], [5.5, 6.5, 0.0, 1.0]], belief_mean=[[3.1, 4.2, 0.0, 0.0], [5.0, 6.0, 0, 0]],
+        belief_cov=full_cov.tolist(), observed=[True, False],
     )
     transform = json.loads(tf)
     assert list(transform) == FRAME_TRANSFORM_FIELDS
@@ -107,3 +110,11 @@ def test_grid_map_from_parse_world_is_a_grid_map():
     back = parse_world(world_message(info, 0))
     assert back.grid_map.shape == (4, 6) and not back.grid_map.has_obstacles
     assert back.fov_deg == 360.0
+
+
+def test_non_finite_numbers_are_drawn_as_zero_and_stay_valid_json():
+    encoder = FrameEncoder(sensor_range=10.0, fov_deg=120.0)
+    tf, scene = encoder.encode(0, 0, 0, 0, 0.0, [float("nan"), 1.0, 0.0], [[float("inf"), 2.0]], [[1.0, 2.0]],
+                               [[[1.0, 0.0], [0.0, 1.0]]], [False])
+    frame = parse_frame(tf, scene)  # json.loads would fail on NaN or Infinity
+    assert frame.robot_pose.tolist() == [0.0, 1.0, 0.0] and frame.targets.tolist() == [[0.0, 2.0]]
