@@ -120,8 +120,8 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
 
 
 def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: float) -> tuple[int, int]:
-    """Write a recorded episode as a GIF (every step) or a PNG strip of ``frames`` evenly spaced steps;
-    returns the image's (width, height)."""
+    """Write a recorded episode as a GIF (every step) or a PNG strip of ``frames`` evenly spaced steps (the
+    paper's Fig. 3: earlier robot and target positions as trails); returns the image's (width, height)."""
     from PIL import Image
 
     from aia.envs.render import render_frame
@@ -135,14 +135,19 @@ def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: fl
     info, steps = run.episode(episode if episode in ("first", "last") else _episode_index(episode))
     if not steps:
         raise ValueError(f"{run.path}: recorded episode {info.episode} has no frames")
+    shown = range(len(steps))
     if out.suffix.lower() == ".png":
-        steps = [steps[i] for i in np.unique(np.linspace(0, len(steps) - 1, frames).round().astype(int))]
+        shown = np.unique(np.linspace(0, len(steps) - 1, frames).round().astype(int)).tolist()
+    robot_path = np.stack([step.robot_pose[:2] for step in steps])
+    target_paths = np.stack([step.targets for step in steps])
 
-    def draw(step) -> np.ndarray:
+    def draw(t: int) -> np.ndarray:
+        step = steps[t]
         return render_frame(info.grid_map, step.robot_pose, step.targets, step.belief_mean, step.belief_cov,
-                            info.sensor_range, info.fov_deg, size=size, observed=step.observed)
+                            info.sensor_range, info.fov_deg, size=size, observed=step.observed,
+                            robot_path=robot_path[:t], target_paths=target_paths[:t])
 
-    images = [Image.fromarray(draw(step)) for step in steps]
+    images = [Image.fromarray(draw(t)) for t in shown]
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".gif":
         images[0].save(out, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)

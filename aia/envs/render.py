@@ -1,7 +1,8 @@
 """Draw one tracking world as an RGB image with Pillow (no matplotlib).
 
 :func:`render_frame` paints, back to front: the occupancy grid (occupied cells dark grey on white, the map
-drawn with ``y`` pointing up), the sensor's field of view (a translucent blue sector), the 2-sigma position
+drawn with ``y`` pointing up), the sensor's field of view (a translucent blue sector), optional trails of
+earlier robot and target positions (small blue and red dots, as in the paper's Fig. 3), the 2-sigma position
 ellipse of every belief, the belief means (green dots), the true targets (red dots, ringed in orange when
 observed), the robot (a blue triangle pointing along its heading) and the map border. The map keeps its
 aspect ratio: a non-square map is centred and the rest of the square canvas is padded in light grey.
@@ -47,6 +48,8 @@ def render_frame(
     fov_deg: float,
     size: int = 512,
     observed: torch.Tensor | np.ndarray | None = None,
+    robot_path: np.ndarray | None = None,
+    target_paths: np.ndarray | None = None,
 ) -> np.ndarray:
     """An RGB frame ``uint8 [size, size, 3]`` of one world.
 
@@ -60,6 +63,8 @@ def render_frame(
         fov_deg: opening angle of the field-of-view sector in degrees.
         size: side of the square image in pixels.
         observed: optional ``[N]`` booleans; observed targets get an orange ring.
+        robot_path: optional ``[K, 2]`` earlier robot positions, drawn as small blue dots (the paper's Fig. 3).
+        target_paths: optional ``[K, N, 2]`` earlier true target positions, drawn as small red dots.
     """
     size = int(size)
     if size < 16:
@@ -111,6 +116,11 @@ def render_frame(
 
     line = max(1, round(size / 256))
     dot = max(2.0, size / 128)
+    trail = dot / 2
+    for path, colour in ((robot_path, ROBOT_COLOUR), (target_paths, TARGET_COLOUR)):
+        if path is not None:
+            for x, y in to_pixels(np.asarray(path, dtype=np.float64).reshape(-1, 2)).tolist():
+                draw.ellipse([x - trail, y - trail, x + trail, y + trail], fill=colour)
     for polygon in _ellipse_polygons(means[:, :2], covs[:, :2, :2], to_pixels):
         draw.polygon([tuple(p) for p in polygon.tolist()], outline=BELIEF_COLOUR, width=line)
     for x, y in to_pixels(means[:, :2]).tolist():

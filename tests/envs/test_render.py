@@ -178,3 +178,18 @@ def test_bad_shapes_raise():
         render_frame(grid, np.zeros((2, 3)), target, mean, cov, 5.0, 90.0)
     with pytest.raises(ValueError, match="belief_cov"):
         render_frame(grid, np.zeros(3), target, mean, cov[:, :, :3], 5.0, 90.0)
+
+
+def test_trails_draw_earlier_positions():
+    grid = load_map("empty_small")
+    pose = np.array([20.0, 20.0, 0.0])
+    target = np.array([[22.0, 20.0, 0.0, 0.0]])
+    mean, cov = target.copy(), np.eye(4)[None] * 0.01
+    plain = render_frame(grid, pose, target, mean, cov, 5.0, 90.0, size=270)
+    robot_path = np.array([[3.0, 3.0]])
+    target_paths = np.array([[[3.0, 24.0]]])
+    trailed = render_frame(grid, pose, target, mean, cov, 5.0, 90.0, size=270, robot_path=robot_path,
+                           target_paths=target_paths)
+    # 10 pixels per metre on this 27 m map: (3, 3) is pixel (30, 240), (3, 24) is (30, 30)
+    assert tuple(trailed[240, 30]) == ROBOT_COLOUR and tuple(plain[240, 30]) == FREE_COLOUR
+    assert tuple(trailed[30, 30]) == TARGET_COLOUR and tuple(plain[30, 30]) == FREE_COLOUR
