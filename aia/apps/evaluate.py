@@ -1,12 +1,16 @@
-"""``aia-eval``: score a policy saved by ``aia-train`` on fresh episodes (greedy or semi-greedy).
+"""``aia-eval``: score a policy on fresh episodes: one saved by ``aia-train`` or the ARVI planner.
 
-Rebuilds the env and the network from the config stored in the checkpoint, runs ``episodes`` episodes as
-one batched rollout at ``epsilon`` and prints the score mean and std (SPEC 9); writes ``eval.json``.
+``policy=checkpoint`` rebuilds the env and the network from the config stored in the checkpoint and acts
+at ``epsilon``; ``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``planner.*``) in the setting
+``env``. Either way ``episodes`` episodes run as one batched rollout through the same evaluation path; the
+app prints the score mean and std (SPEC 9) and writes ``eval.json``.
 """
 
 from __future__ import annotations
 
 import json
+import math
+from dataclasses import asdict
 from pathlib import Path
 
 import hydra
@@ -14,12 +18,16 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
+from torchrl.envs import StepCounter
 
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import episode_scores, run_episodes
 from aia.modules import EpsilonGreedy
+from aia.planners import ARVIPolicy, to_arvi_config
 from aia.train import make_actor
+
+POLICIES = ("checkpoint", "arvi")
 
 
 def load_checkpoint(path: str | Path) -> dict:
@@ -38,8 +46,7 @@ def load_checkpoint(path: str | Path) -> dict:
 
 def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: int, device: str) -> dict:
     """Scores of the checkpoint's policy on ``episodes`` fresh episodes."""
-    if episodes < 1:
-        raise ValueError(f"episodes={episodes} must be >= 1")
+    _check_episodes(episodes)
     if not 0.0 <= epsilon <= 1.0:
         raise ValueError(f"epsilon={epsilon} must lie in [0, 1]")
     checkpoint = load_checkpoint(path)
@@ -50,28 +57,55 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
     actor.load_state_dict(checkpoint["actor"])
     policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec.n, epsilon, epsilon, 1, seed=seed,
                                                        device=device))
-    scores = episode_scores(run_episodes(env, policy))
-    return {
-        "checkpoint": str(path),
-        "algo": cfg.algo.name,
-        "frames_trained": checkpoint["state"]["frames"],
-        "episodes": episodes,
-        "epsilon": epsilon,
-        "score_mean": scores.mean().item(),
-        "score_std": scores.std(correction=0).item(),
-        "scores": scores.tolist(),
-    }
+    result = {"checkpoint": str(path), "algo": cfg.algo.name, "frames_trained": checkpoint["state"]["frames"],
+              "episodes": episodes, "epsilon": epsilon}
+    return result | _score_summary(episode_scores(run_episodes(env, policy)))
+
+
+def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seed: int, device: str) -> dict:
+    """Scores of the ARVI planner on ``episodes`` fresh episodes of the setting ``env_cfg`` (all worlds are
+    planned together, so a wall-clock budget is shared by the batch)."""
+    _check_episodes(episodes)
+    planner = to_arvi_config(planner_cfg)
+    env = make_env(to_tracking_config(env_cfg), batch_size=episodes, device=device, seed=seed)
+    env.append_transform(StepCounter())  # ARVIPolicy re-plans on the episode's step count
+    scores = episode_scores(run_episodes(env, ARVIPolicy(env, planner)))
+    parameters = {k: v if not isinstance(v, float) or math.isfinite(v) else str(v) for k, v in asdict(planner).items()}
+    return {"policy": "arvi", "planner": parameters, "episodes": episodes} | _score_summary(scores)
+
+
+def _check_episodes(episodes: int) -> None:
+    if episodes < 1:
+        raise ValueError(f"episodes={episodes} must be >= 1")
+
+
+def _score_summary(scores: torch.Tensor) -> dict:
+    return {"score_mean": scores.mean().item(), "score_std": scores.std(correction=0).item(),
+            "scores": scores.tolist()}
 
 
 @hydra.main(config_path="pkg://aia.conf", config_name="eval", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     """Entry point of ``aia-eval``."""
-    result = evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device)
-    print(f"{result['algo']} after {result['frames_trained']} frames: score {result['score_mean']:.1f} "
-          f"+- {result['score_std']:.1f} over {cfg.episodes} episodes (epsilon {cfg.epsilon})")
+    if cfg.policy == "checkpoint":
+        result = evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device)
+        what = f"{result['algo']} after {result['frames_trained']} frames"
+        how = f"epsilon {cfg.epsilon}"
+    elif cfg.policy == "arvi":
+        result = evaluate_planner(cfg.env, cfg.planner, cfg.episodes, cfg.seed, cfg.device)
+        what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
+    else:
+        raise ValueError(f"policy={cfg.policy!r} is not one of {list(POLICIES)}")
+    print(f"{what}: score {result['score_mean']:.1f} +- {result['score_std']:.1f} over {cfg.episodes} episodes "
+          f"({how})")
     out = Path(HydraConfig.get().runtime.output_dir) / "eval.json"
     out.write_text(json.dumps(result, indent=2))
     print(f"log written to {out}")
+
+
+def _budget(planner: DictConfig) -> str:
+    budgets = {"time_budget": "{} s", "max_passes": "{} passes", "max_nodes": "{} nodes per world"}
+    return ", ".join(form.format(planner[name]) for name, form in budgets.items() if planner[name] is not None)
 
 
 if __name__ == "__main__":
