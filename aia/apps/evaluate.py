@@ -87,6 +87,8 @@ def _score_summary(scores: torch.Tensor) -> dict:
 @hydra.main(config_path="pkg://aia.conf", config_name="eval", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     """Entry point of ``aia-eval``."""
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
     if cfg.policy == "checkpoint":
         result = evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device)
         what = f"{result['algo']} after {result['frames_trained']} frames"

@@ -126,7 +126,7 @@ def visible_targets(model: TrackingModel, pose: Tensor, positions: Tensor) -> Te
     inside the field of view and with a free line of sight (the env's sensing rule, SPEC 4)."""
     polar = belief.range_bearing(positions, pose.unsqueeze(-2))
     seen = (polar[..., 0] <= model.sensor_range) & (polar[..., 1].abs() <= model.half_fov)
-    origin = pose[..., :2].unsqueeze(-2).expand(positions.shape)
+    origin, positions = torch.broadcast_tensors(pose[..., :2].unsqueeze(-2), positions)
     return seen & model.geometry.line_of_sight(origin, positions)
 
 

@@ -53,8 +53,8 @@ def test_app_prints_and_writes_its_log(tmp_path, checkpoint):
 
 def _arvi_config(*overrides):
     with initialize_config_module(config_module="aia.conf", version_base="1.3"):
-        return compose(config_name="eval", overrides=["policy=arvi", "env.max_steps=12", "planner.time_budget=null",
-                                                      "planner.max_passes=26", *overrides])
+        return compose(config_name="eval", overrides=["policy=arvi", "env.max_steps=10", "planner.time_budget=null",
+                                                      "planner.max_passes=1", *overrides])
 
 
 def test_arvi_is_scored_through_the_evaluation_path():
@@ -69,7 +69,7 @@ def test_arvi_is_scored_through_the_evaluation_path():
 
 def test_app_runs_arvi_and_names_an_unknown_policy(tmp_path):
     command = [sys.executable, "-m", "aia.apps.evaluate", "policy=arvi", "episodes=2", "env.max_steps=10",
-               "planner.time_budget=0.02", f"hydra.run.dir={tmp_path}"]
+               "planner.time_budget=0.02", "threads=1", f"hydra.run.dir={tmp_path}"]
     result = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert "arvi: score" in result.stdout and "over 2 episodes (horizon 12, budget 0.02 s)" in result.stdout

@@ -15,6 +15,16 @@ from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy, arvi, to_arvi_conf
 from aia.policies import RandomPolicy
 
 
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Planning is a chain of small tensor ops: with a second intra-op thread on a busy 2-core machine, every
+    batched Cholesky waits for the other core (docs/planner.md)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def _config(**overrides) -> ARVIConfig:
     """A deterministic budget (no wall clock), so that results do not depend on the machine."""
     return ARVIConfig(**{"time_budget": None, "max_passes": 0, **overrides})
@@ -176,7 +186,7 @@ def _sequential_suppression(cost, xy, group, delta):
     return sorted(kept)
 
 
-@pytest.mark.parametrize("count", [200, 1500])  # the dense and the grid neighbour search
+@pytest.mark.parametrize("count", [200, 800])  # the dense and the grid neighbour search
 def test_parallel_rounds_equal_sequential_suppression(count):
     generator = torch.Generator().manual_seed(count)
     xy = 10 * torch.rand(count, 2, generator=generator, dtype=torch.float64)

@@ -1,0 +1,152 @@
+"""ARVI planning time, tree size and score: a fast budget against the reference's 1 s budget.
+
+Speed: for each setting, number of worlds planned in one call and budget, plans from ``--states`` seeded
+states (reset plus a few random steps) and reports the median wall time per call, the nodes generated per
+world and the smallest ``delta`` the anytime schedule reached. Quality: ``--episodes`` seeded single-world
+episodes of the 1-target setting under each budget (re-planning every 5 steps, as the reference), with the
+mean score and the paired difference to the reference budget. Prints markdown tables and writes JSON
+(default ``benchmarks/results/arvi_<device>.json``).
+
+    python benchmarks/arvi.py                                   # CPU: empty1 and small3, 1 and 10 worlds
+    python benchmarks/arvi.py --device cuda --episodes 0        # timings only
+
+Timings on a machine shared with other jobs vary by tens of percent from run to run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+from torchrl.envs import StepCounter
+
+from aia.envs import make_env
+from aia.evaluation import episode_scores, run_episodes
+from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy
+from aia.policies import RandomPolicy
+
+REFERENCE_BUDGET = 1.0  # seconds per call (the reference's ARVI)
+
+
+def planning_states(setting: str, num_worlds: int, states: int, device: str) -> list:
+    """``states`` batches of ``num_worlds`` env states: a seeded reset then 0, 3, 6... random steps."""
+    env = make_env(setting, batch_size=num_worlds, device=device, seed=0, transforms=False)
+    random = RandomPolicy(env.action_spec.n, seed=0, device=device)
+    td, out = env.reset(), []
+    for _ in range(states):
+        out.append((td["robot_pose"], td["belief_mean"], td["belief_cov"]))
+        for _ in range(3):
+            td = env.step(random(td))["next"]
+    return out
+
+
+def measure_speed(setting: str, num_worlds: int, budget: float, states: int, device: str) -> dict:
+    """Median wall time per planning call at ``budget`` seconds, with the tree it built."""
+    env = make_env(setting, batch_size=num_worlds, device=device, seed=0, transforms=False)
+    planner = ARVIPlanner(env, ARVIConfig(time_budget=budget))
+    batches = planning_states(setting, num_worlds, states, device)
+    planner.plan(*batches[0])  # warm-up
+    seconds, nodes, deltas = [], [], []
+    for batch in batches:
+        _sync(device)
+        start = time.perf_counter()
+        result = planner.plan(*batch)
+        _sync(device)
+        seconds.append(time.perf_counter() - start)
+        nodes.append(result.nodes.float().mean().item())
+        deltas.append(result.delta)
+    return {"setting": setting, "targets": env.num_targets, "worlds": num_worlds, "budget_s": budget,
+            "device": device, "states": states, "ms_per_call": 1e3 * statistics.median(seconds),
+            "ms_max": 1e3 * max(seconds), "nodes_per_world": statistics.median(nodes),
+            "delta_reached": statistics.median(deltas)}
+
+
+def measure_scores(setting: str, budget: float, episodes: int, device: str) -> list[float]:
+    """Scores of single-world episodes with seeds ``0 .. episodes - 1`` at ``budget`` seconds per plan."""
+    scores = []
+    for seed in range(episodes):
+        env = make_env(setting, batch_size=1, device=device, seed=seed)
+        env.append_transform(StepCounter())
+        policy = ARVIPolicy(env, ARVIConfig(time_budget=budget))
+        scores.append(episode_scores(run_episodes(env, policy, seed=seed)).item())
+    return scores
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+
+
+def speed_table(rows: list[dict]) -> str:
+    lines = ["| setting | targets | worlds | budget (s) | ms per call (max) | nodes per world | delta reached |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['setting']} | {r['targets']} | {r['worlds']} | {r['budget_s']:g} | "
+                     f"{r['ms_per_call']:.1f} ({r['ms_max']:.1f}) | {r['nodes_per_world']:,.0f} | "
+                     f"{r['delta_reached']:.2f} |")
+    return "\n".join(lines)
+
+
+def quality_summary(quality: dict) -> str:
+    reference = quality[str(REFERENCE_BUDGET)]
+    lines = ["| budget (s) | score mean | score std | paired difference to 1 s (mean +- s.e.) |",
+             "|---:|---:|---:|---:|"]
+    for budget, scores in quality.items():
+        diffs = [a - b for a, b in zip(scores, reference, strict=True)]
+        se = statistics.stdev(diffs) / math.sqrt(len(diffs)) if len(diffs) > 1 else math.nan
+        lines.append(f"| {float(budget):g} | {statistics.mean(scores):.1f} | {statistics.pstdev(scores):.1f} | "
+                     f"{statistics.mean(diffs):+.1f} +- {se:.1f} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--settings", nargs="+", default=["empty1", "small3"])
+    parser.add_argument("--worlds", nargs="+", type=int, default=[1, 10])
+    parser.add_argument("--fast-budget", type=float, default=0.04, help="seconds per call of the fast setting")
+    parser.add_argument("--states", type=int, default=5, help="planning calls timed per case")
+    parser.add_argument("--episodes", type=int, default=8, help="seeded episodes per budget for the scores")
+    parser.add_argument("--quality-setting", default="empty1")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch CPU threads (planning is latency-bound: on a busy machine a second thread "
+                             "makes every batched Cholesky wait for the other core)")
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+
+    budgets = [args.fast_budget, REFERENCE_BUDGET]
+    rows = []
+    for setting in args.settings:
+        for worlds in args.worlds:
+            for budget in budgets:
+                rows.append(measure_speed(setting, worlds, budget, args.states, args.device))
+                print(speed_table(rows[-1:]).splitlines()[-1], flush=True)
+    quality = {}
+    if args.episodes:
+        for budget in budgets:
+            quality[str(budget)] = measure_scores(args.quality_setting, budget, args.episodes, args.device)
+            print(f"budget {budget:g} s: scores {[round(s) for s in quality[str(budget)]]}", flush=True)
+
+    out = args.out or Path(__file__).parent / "results" / f"arvi_{args.device.split(':')[0]}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
+            "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
+            "quality_setting": args.quality_setting}
+    out.write_text(json.dumps({"meta": meta, "speed": rows, "scores": quality}, indent=2))
+    print()
+    print(speed_table(rows))
+    if quality:
+        print()
+        print(quality_summary(quality))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
