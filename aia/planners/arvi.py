@@ -266,8 +266,8 @@ class PlanResult(NamedTuple):
     actions: Tensor  # [W, T] primitive indices, first action first
     cost: Tensor  # [W] g of the returned leaf
     nodes: Tensor  # [W] nodes generated (children whose covariance was computed)
-    passes: int  # passes of the delta schedule completed after the greedy chain
-    delta: float  # smallest delta used by a completed pass (inf: greedy chain only)
+    passes: int  # passes of the delta schedule covered after the greedy chain (run, or skipped as changing nothing)
+    delta: float  # delta of the last covered pass (inf: greedy chain only)
 
 
 class ARVIPlanner:
@@ -409,6 +409,10 @@ class _Search:
         leaves = self.levels[-1]
         best = torch.full((self.num_worlds,), math.inf, dtype=torch.float64, device=leaves.cost.device)
         best = best.scatter_reduce(0, leaves.world, leaves.cost, "amin")
+        if torch.isinf(best).any():
+            stuck = torch.isinf(best).nonzero().squeeze(-1).tolist()
+            raise ValueError(f"worlds {stuck}: no collision-free path of {self.cfg.horizon} steps (does the robot "
+                             f"pose {self.levels[0].pose[stuck[0]].tolist()} collide?)")
         index = torch.arange(leaves.cost.numel(), device=best.device)
         first = torch.full_like(self.nodes, leaves.cost.numel())
         first = first.scatter_reduce(0, leaves.world, torch.where(leaves.cost == best[leaves.world], index,

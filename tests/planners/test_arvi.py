@@ -211,6 +211,14 @@ def test_plans_never_collide():
         assert not td["collision"].any(), f"a planned primitive collided at step {t}"
 
 
+def test_a_robot_inside_an_obstacle_is_named():
+    env = make_env("obstacles1", transforms=False)
+    pose, mean, cov = _scene()
+    pose[0, :2] = torch.tensor([5.0, 10.0])  # inside the box x 2.6-9.4, y 7.4-17.0
+    with pytest.raises(ValueError, match=r"worlds \[0\]: no collision-free path of 12 steps"):
+        ARVIPlanner(env, _config()).plan(pose, mean, cov)
+
+
 # -------------------------------------------------------------------------------------------- policy
 def test_policy_replans_every_k_steps_and_after_resets():
     env = make_env("empty1", batch_size=2, seed=0, overrides=["max_steps=7"])
