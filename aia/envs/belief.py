@@ -6,6 +6,8 @@ the planner): the covariance steps here are the single implementation that both 
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -29,6 +31,15 @@ def predict(mean: Tensor, cov: Tensor, transition: Tensor, noise: Tensor) -> tup
 def predict_cov(cov: Tensor, transition: Tensor, noise: Tensor) -> Tensor:
     """Covariance half of the prediction: ``A Sigma A^T + W``."""
     return bmm(bmm(transition, cov), transition.mT) + noise
+
+
+def cap_det(prior: Tensor, predicted: Tensor, log_det_cap: float) -> Tensor:
+    """The 2019 code's det cap: keep the ``prior`` covariance where the ``predicted`` one reaches
+    ``log det >= log_det_cap`` (``inf``: no cap). The update never raises det, so it is not capped."""
+    if not math.isfinite(log_det_cap):
+        return predicted
+    keep = logdet(predicted) >= log_det_cap
+    return torch.where(keep[..., None, None], prior, predicted)
 
 
 def range_bearing(points: Tensor, pose: Tensor) -> Tensor:

@@ -20,6 +20,7 @@ import math
 import torch
 from torch import Tensor
 
+from aia.envs.belief import range_bearing
 from aia.envs.dynamics import wrap_angle
 from aia.envs.maps import GridMap, load_map
 
@@ -91,6 +92,15 @@ class MapGeometry:
         return (centre + (uniforms[..., 1:3] - 0.5) * 0.999) * self.fine_cell
 
     # --------------------------------------------------------------- sight
+    def in_view(self, pose: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
+        """The sensing rule (SPEC 4): ``(seen [..., N], polar [..., N, 2])`` of ``points [..., N, 2]`` from
+        ``pose [..., 3]``, where a point is seen when it lies within the sensor range, inside the field of
+        view and behind no occupied cell; ``polar`` is its (range, bearing)."""
+        polar = range_bearing(points, pose.unsqueeze(-2))
+        seen = (polar[..., 0] <= self.sensor_range) & (polar[..., 1].abs() <= self.fov / 2)
+        origin, points = torch.broadcast_tensors(pose[..., :2].unsqueeze(-2), points)
+        return seen & self.line_of_sight(origin, points), polar
+
     def line_of_sight(self, origin: Tensor, target: Tensor) -> Tensor:
         """Whether the segment from ``origin [..., 2]`` to ``target [..., 2]`` crosses no occupied cell.
 

@@ -278,19 +278,13 @@ class TargetTrackingEnv(EnvBase):
         targets = self._move_targets(targets, noise[..., :4], noise[..., 4:6])
 
         # Sensor: range, field of view and line of sight to the true targets.
-        polar = belief.range_bearing(targets[..., :2], pose[:, None, :])
-        observed = (polar[..., 0] <= cfg.sensor.range) & (polar[..., 1].abs() <= math.radians(cfg.sensor.fov_deg) / 2)
-        observed &= geom.line_of_sight(pose[:, None, :2].expand(-1, N, -1), targets[..., :2])
+        observed, polar = geom.in_view(pose, targets[..., :2])
         measurement = polar + noise[..., 6:8] * self.meas_std
 
         # Belief: predict all, update the observed ones (SPEC 5 order).
         prior_cov = cov
         mean, cov = belief.predict(mean, cov, self.transition, self.belief_noise)
-        if math.isfinite(self.log_det_cap):
-            # 2019 code: keep the previous covariance when the predicted one reaches the det cap. (The
-            # update never raises det, so the cap it also applies after the update never bites.)
-            keep = belief.logdet(cov) >= self.log_det_cap
-            cov = torch.where(keep[..., None, None], prior_cov, cov)
+        cov = belief.cap_det(prior_cov, cov, self.log_det_cap)
         mean = self._clip_belief(mean)
         mean_post, cov_post = belief.update(mean, cov, measurement, pose[:, None, :], self.meas_noise)
         mean = torch.where(observed[..., None], self._clip_belief(mean_post), mean)

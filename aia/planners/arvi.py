@@ -108,36 +108,25 @@ class TrackingModel(NamedTuple):
     process_noise: Tensor  # [4, 4] W of the belief
     meas_noise: Tensor  # [2, 2] V
     log_det_cap: float  # the env's det cap (inf: none)
-    geometry: MapGeometry
-    sensor_range: float
-    half_fov: float
+    geometry: MapGeometry  # collision and the sensing rule (range, field of view, line of sight)
 
     @classmethod
     def from_env(cls, env: TargetTrackingEnv) -> TrackingModel:
         """The model of ``env`` (its very tensors, cast to float64)."""
         cfg, f64 = env.config, torch.float64
         return cls(env.primitives.to(f64), cfg.dt, env.transition.to(f64), env.belief_noise.to(f64),
-                   env.meas_noise.to(f64), env.log_det_cap, env.geometry, cfg.sensor.range,
-                   math.radians(cfg.sensor.fov_deg) / 2)
+                   env.meas_noise.to(f64), env.log_det_cap, env.geometry)
 
 
 def visible_targets(model: TrackingModel, pose: Tensor, positions: Tensor) -> Tensor:
-    """``[..., N]`` whether each target position ``[..., N, 2]`` is seen from ``pose [..., 3]``: within range,
-    inside the field of view and with a free line of sight (the env's sensing rule, SPEC 4)."""
-    polar = belief.range_bearing(positions, pose.unsqueeze(-2))
-    seen = (polar[..., 0] <= model.sensor_range) & (polar[..., 1].abs() <= model.half_fov)
-    origin, positions = torch.broadcast_tensors(pose[..., :2].unsqueeze(-2), positions)
-    return seen & model.geometry.line_of_sight(origin, positions)
+    """``[..., N]`` whether each target position ``[..., N, 2]`` is seen from ``pose [..., 3]``: the env's
+    sensing rule (:meth:`MapGeometry.in_view`, SPEC 4)."""
+    return model.geometry.in_view(pose, positions)[0]
 
 
 def predict_cov(model: TrackingModel, cov: Tensor) -> Tensor:
-    """The env's covariance prediction ``A Sigma A^T + W``, which keeps ``Sigma`` when the prediction would
-    reach the det cap (``belief.det_cap``)."""
-    predicted = belief.predict_cov(cov, model.transition, model.process_noise)
-    if not math.isfinite(model.log_det_cap):
-        return predicted
-    capped = belief.logdet(predicted) >= model.log_det_cap
-    return torch.where(capped[..., None, None], cov, predicted)
+    """The env's covariance prediction ``A Sigma A^T + W`` with its det cap (:func:`belief.cap_det`)."""
+    return belief.cap_det(cov, belief.predict_cov(cov, model.transition, model.process_noise), model.log_det_cap)
 
 
 def update_visible(model: TrackingModel, predicted: Tensor, pose: Tensor, positions: Tensor, visible: Tensor) -> Tensor:

@@ -289,3 +289,11 @@ def test_covariance_stays_spd_over_long_float32_rollout(single_thread):
     # The filter tracks: beliefs are within a few metres of the truth and log det is small.
     assert (mean[..., :2] - truth[..., :2]).abs().max().item() < 3.0
     assert belief.logdet(cov).max().item() < 0.0
+
+
+def test_cap_det_keeps_the_prior_where_the_prediction_reaches_the_cap():
+    prior = torch.stack((torch.eye(4), 10 * torch.eye(4))).double()
+    predicted = 2 * prior  # log det: 4 log 2 = 2.77 and 4 log 20 = 11.98
+    capped = belief.cap_det(prior, predicted, log_det_cap=math.log(1e5))  # 11.51
+    assert torch.equal(capped[0], predicted[0]) and torch.equal(capped[1], prior[1])
+    assert torch.equal(belief.cap_det(prior, predicted, math.inf), predicted)

@@ -321,3 +321,16 @@ def test_polar_table_hand_values(column):
     assert column.ray_table[10 * nx + 4, 0].item() == pytest.approx(3.75)
     assert column.ray_table[10 * nx + 4, column.num_bins // 2].item() == pytest.approx(2.25)
     assert column.ray_table[10 * nx + 12, 0].item() == 0.0
+
+
+def test_in_view_applies_range_field_of_view_and_line_of_sight():
+    occupancy = torch.zeros(20, 20, dtype=torch.bool)
+    occupancy[8:12, 12] = True  # a wall at x in [6, 6.5) m, y in [4, 6) m
+    geometry = _geometry(occupancy)
+    pose = torch.tensor([2.0, 5.0, 0.0])
+    points = torch.tensor([[4.0, 5.0], [2.0, 7.0], [2.0 + RANGE + 0.5, 5.0], [8.0, 5.0], [8.0, 9.0]])
+    seen, polar = geometry.in_view(pose, points)
+    # ahead: seen; straight left: outside the field of view; too far; behind the wall; 34 degrees to the left
+    # at 7.2 m, the segment passing above the wall (y = 7.7 m at x = 6 m)
+    assert seen.tolist() == [True, False, False, False, True]
+    assert polar[0].tolist() == pytest.approx([2.0, 0.0]) and polar[1].tolist() == pytest.approx([2.0, math.pi / 2])
