@@ -3,7 +3,8 @@
 ``policy=checkpoint`` rebuilds the env and the network from the config stored in the checkpoint and acts
 at ``epsilon``; ``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``planner.*``) in the setting
 ``env``. Either way ``episodes`` episodes run as one batched rollout through the same evaluation path; the
-app prints the score mean and std (SPEC 9) and writes ``eval.json``.
+app prints the score mean and std (SPEC 9) and writes ``eval.json`` and ``run.mcap`` (the scores, the
+config, and world 0's episode as Foxglove scenes: ``aia-log render`` draws it as in the paper's Fig. 3).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from torchrl.envs import StepCounter
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import episode_scores, run_episodes
+from aia.logging import MCAPLogger, SceneRecorder
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
 from aia.train import make_actor
@@ -44,8 +46,9 @@ def load_checkpoint(path: str | Path) -> dict:
     return checkpoint
 
 
-def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: int, device: str) -> dict:
-    """Scores of the checkpoint's policy on ``episodes`` fresh episodes."""
+def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: int, device: str,
+                        logger: MCAPLogger | None = None) -> dict:
+    """Scores of the checkpoint's policy on ``episodes`` fresh episodes (logged to ``logger`` if given)."""
     _check_episodes(episodes)
     if not 0.0 <= epsilon <= 1.0:
         raise ValueError(f"epsilon={epsilon} must lie in [0, 1]")
@@ -57,21 +60,41 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
     actor.load_state_dict(checkpoint["actor"])
     policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec.n, epsilon, epsilon, 1, seed=seed,
                                                        device=device))
-    result = {"checkpoint": str(path), "algo": cfg.algo.name, "frames_trained": checkpoint["state"]["frames"],
-              "episodes": episodes, "epsilon": epsilon}
-    return result | _score_summary(episode_scores(run_episodes(env, policy)))
+    frames = checkpoint["state"]["frames"]
+    result = {"checkpoint": str(path), "algo": cfg.algo.name, "frames_trained": frames, "episodes": episodes,
+              "epsilon": epsilon}
+    return result | score_episodes(env, policy, logger, frames)
 
 
-def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seed: int, device: str) -> dict:
+def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seed: int, device: str,
+                     logger: MCAPLogger | None = None) -> dict:
     """Scores of the ARVI planner on ``episodes`` fresh episodes of the setting ``env_cfg`` (all worlds are
-    planned together, so a wall-clock budget is shared by the batch)."""
+    planned together, so a wall-clock budget is shared by the batch; logged to ``logger`` if given)."""
     _check_episodes(episodes)
     planner = to_arvi_config(planner_cfg)
     env = make_env(to_tracking_config(env_cfg), batch_size=episodes, device=device, seed=seed)
     env.append_transform(StepCounter())  # ARVIPolicy re-plans on the episode's step count
-    scores = episode_scores(run_episodes(env, ARVIPolicy(env, planner)))
+    result = score_episodes(env, ARVIPolicy(env, planner), logger)
     parameters = {k: v if not isinstance(v, float) or math.isfinite(v) else str(v) for k, v in asdict(planner).items()}
-    return {"policy": "arvi", "planner": parameters, "episodes": episodes} | _score_summary(scores)
+    return {"policy": "arvi", "planner": parameters, "episodes": episodes} | result
+
+
+def score_episodes(env, policy, logger: MCAPLogger | None, frame: int = 0) -> dict:
+    """One episode per world of ``env`` under ``policy``: the scores and their mean and std. With a
+    ``logger``, world 0's episode is recorded as scenes and every score goes to ``eval/episode_score`` (step:
+    the world's index), their mean and std to ``eval/score`` and ``eval/score_std`` (step: ``frame``)."""
+    if logger is not None:
+        recorder = SceneRecorder(logger)
+        env.append_transform(recorder)
+        recorder.record(episode=0, frame=frame)
+    scores = episode_scores(run_episodes(env, policy))
+    summary = _score_summary(scores)
+    if logger is not None:
+        for world, score in enumerate(summary["scores"]):
+            logger.log_scalar("eval/episode_score", score, step=world)
+        logger.log_scalar("eval/score", summary["score_mean"], step=frame)
+        logger.log_scalar("eval/score_std", summary["score_std"], step=frame)
+    return summary
 
 
 def _check_episodes(episodes: int) -> None:
@@ -89,20 +112,28 @@ def main(cfg: DictConfig) -> None:
     """Entry point of ``aia-eval``."""
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    if cfg.policy == "checkpoint":
-        result = evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device)
-        what = f"{result['algo']} after {result['frames_trained']} frames"
-        how = f"epsilon {cfg.epsilon}"
-    elif cfg.policy == "arvi":
-        result = evaluate_planner(cfg.env, cfg.planner, cfg.episodes, cfg.seed, cfg.device)
-        what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
-    else:
+    if cfg.policy not in POLICIES:
         raise ValueError(f"policy={cfg.policy!r} is not one of {list(POLICIES)}")
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    logger = MCAPLogger(f"eval-{cfg.policy}-seed{cfg.seed}", out_dir, run_metadata={"seed": cfg.seed,
+                                                                                     "policy": cfg.policy})
+    try:
+        if cfg.policy == "checkpoint":
+            result = evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device, logger)
+            logger.log_hparams(OmegaConf.merge(load_checkpoint(cfg.checkpoint)["config"], {"aia_eval": cfg}))
+            what = f"{result['algo']} after {result['frames_trained']} frames"
+            how = f"epsilon {cfg.epsilon}"
+        else:
+            result = evaluate_planner(cfg.env, cfg.planner, cfg.episodes, cfg.seed, cfg.device, logger)
+            logger.log_hparams(cfg)
+            what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
+    finally:
+        logger.close()
     print(f"{what}: score {result['score_mean']:.1f} +- {result['score_std']:.1f} over {cfg.episodes} episodes "
           f"({how})")
-    out = Path(HydraConfig.get().runtime.output_dir) / "eval.json"
+    out = out_dir / "eval.json"
     out.write_text(json.dumps(result, indent=2))
-    print(f"log written to {out}")
+    print(f"log written to {out} and {logger.path} (world 0's episode recorded: aia-log render {logger.path})")
 
 
 def _budget(planner: DictConfig) -> str:

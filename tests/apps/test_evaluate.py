@@ -10,6 +10,7 @@ import pytest
 from hydra import compose, initialize_config_module
 
 from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner
+from aia.logging import read_run
 from aia.train import train
 
 
@@ -48,6 +49,13 @@ def test_app_prints_and_writes_its_log(tmp_path, checkpoint):
                              f"hydra.run.dir={tmp_path}"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert "over 3 episodes" in result.stdout and f"log written to {tmp_path / 'eval.json'}" in result.stdout
+    run = read_run(tmp_path / "run.mcap")
+    assert run.complete and len(run.scalars("eval/episode_score").values) == 3
+    assert run.scalars("eval/score").values.tolist() == pytest.approx([json.loads(
+        (tmp_path / "eval.json").read_text())["score_mean"]])
+    assert run.config_value("algo") == "dqn" and run.config_value("aia_eval.episodes") == 3
+    info, frames = run.episode("first")
+    assert info.frame == 200 and len(frames) == 41  # world 0's episode of 40 steps, labelled by frames trained
     assert len(json.loads((tmp_path / "eval.json").read_text())["scores"]) == 3
 
 
