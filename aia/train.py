@@ -17,7 +17,10 @@ from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
+from torch import Tensor
+from torch.optim.adam import adam
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
@@ -25,6 +28,7 @@ from torchrl.record.loggers import Logger
 from torchrl.record.loggers.csv import CSVLogger
 from tqdm import tqdm
 
+from aia.compiling import compiled_update
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import episode_scores, run_episodes
@@ -155,8 +159,10 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     env_config = to_tracking_config(cfg.env)
-    env = make_env(env_config, batch_size=cfg.collector.num_envs, device=cfg.device, seed=cfg.seed)
-    eval_env = make_env(env_config, batch_size=cfg.eval.episodes, device=cfg.device, seed=cfg.seed + 1_000_003)
+    env = make_env(env_config, batch_size=cfg.collector.num_envs, device=cfg.device, seed=cfg.seed,
+                   compile=cfg.compile.env)
+    eval_env = make_env(env_config, batch_size=cfg.eval.episodes, device=cfg.device, seed=cfg.seed + 1_000_003,
+                        compile=cfg.compile.env)
     actor = make_actor(cfg, env)
     exploration = make_exploration(cfg, env.action_spec.n)
     policy = TensorDictSequential(actor, exploration)
@@ -166,6 +172,7 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     loss = make_loss(cfg, actor)
     target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=cfg.compile.update)
     buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size, device=cfg.device), batch_size=cfg.batch_size)
     state = TrainingState()
     recorder = make_recorder(cfg, logger, eval_env)
@@ -201,7 +208,7 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     try:
         for batch in collector:
             batch = batch.reshape(-1)
-            buffer.extend(batch)
+            buffer.extend(batch.select(*loss.in_keys))  # only what the loss reads: cheaper extend and sample
             state.frames += batch.numel()
             if isinstance(exploration, EpsilonGreedy):
                 exploration.step(batch.numel())
@@ -222,7 +229,7 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
                 updates_owed += cfg.updates_per_frame * batch.numel()
                 while updates_owed >= 1:
                     updates_owed -= 1
-                    losses = update(loss, optimizer, target_updater, buffer.sample(), cfg.grad_clip)
+                    losses = update(buffer.sample())
                     state.updates += 1
                     if logger and state.updates % 100 == 0:
                         logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
@@ -243,16 +250,74 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     return state
 
 
-def update(loss: LossModule, optimizer: torch.optim.Optimizer, target_updater: HardUpdate, batch,
-           grad_clip: float):
-    """One optimiser step on ``batch``: loss, backward, gradient-norm clipping, step, target bookkeeping."""
+class Updater:
+    """One optimiser step per call: loss, gradients, gradient-norm clipping, Adam step, target bookkeeping.
+
+    The step is one function of tensors (:func:`adam_step`): ``torch.autograd.grad`` of the loss, the norm
+    clipping of ``torch.nn.utils.clip_grad_norm_`` and ``torch.optim``'s functional Adam on the optimiser's
+    own state (so checkpoints keep the ``optimizer.state_dict()`` format). ``compile=True`` runs that whole
+    function as one ``torch.compile`` graph (forward, backward, clipping and Adam fused; the first call
+    compiles); eager and compiled give the same losses and parameters up to float rounding. The hard
+    target-network copy (``target_updater.step()``) stays outside the graph.
+    """
+
+    def __init__(self, loss: LossModule, optimizer: torch.optim.Adam, target_updater: HardUpdate, grad_clip: float,
+                 compile: bool = False) -> None:
+        if not isinstance(optimizer, torch.optim.Adam) or len(optimizer.param_groups) != 1:
+            raise TypeError("Updater drives a torch.optim.Adam with one parameter group")
+        self.loss = loss
+        self.optimizer = optimizer
+        self.target_updater = target_updater
+        self.grad_clip = float(grad_clip)
+        self._step = compiled_update(adam_step) if compile else adam_step
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        """Update on ``batch``; returns the loss module's output, detached."""
+        group = self.optimizer.param_groups[0]
+        params = group["params"]
+        states = [_adam_state(self.optimizer, p) for p in params]
+        losses = self._step(
+            self.loss, batch, params, [s["exp_avg"] for s in states], [s["exp_avg_sq"] for s in states],
+            [s["max_exp_avg_sq"] for s in states if "max_exp_avg_sq" in s], [s["step"] for s in states],
+            self.grad_clip, _adam_options(group),
+        )
+        self.target_updater.step()
+        return losses
+
+
+def adam_step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
+              exp_avg_sqs: list[Tensor], max_exp_avg_sqs: list[Tensor], steps: list[Tensor], grad_clip: float,
+              options: dict) -> TensorDictBase:
+    """``loss(batch)``, its gradients, ``clip_grad_norm_``'s clipping and ``torch.optim.adam.adam`` in place."""
     losses = loss(batch)
-    optimizer.zero_grad()
-    losses["loss"].backward()
-    torch.nn.utils.clip_grad_norm_(loss.parameters(), grad_clip)
-    optimizer.step()
-    target_updater.step()
-    return losses
+    grads = torch.autograd.grad(losses["loss"], params)
+    total_norm = torch.nn.utils.get_total_norm(grads, 2.0)
+    scale = torch.clamp(grad_clip / (total_norm + 1e-6), max=1.0)  # as clip_grad_norm_
+    with torch.no_grad():
+        adam(params, [g * scale for g in grads], exp_avgs, exp_avg_sqs, max_exp_avg_sqs, steps, **options)
+    return losses.detach()
+
+
+def _adam_options(group: dict) -> dict:
+    """The keyword arguments of ``torch.optim.adam.adam`` for an Adam parameter group."""
+    keys = ("foreach", "capturable", "differentiable", "fused", "decoupled_weight_decay", "amsgrad", "lr",
+            "weight_decay", "eps", "maximize")
+    beta1, beta2 = group["betas"]
+    return {"beta1": beta1, "beta2": beta2, **{key: group[key] for key in keys}}
+
+
+def _adam_state(optimizer: torch.optim.Adam, param: Tensor) -> dict[str, Tensor]:
+    """``optimizer.state[param]``, initialised as ``Adam.step`` does before its first step."""
+    state = optimizer.state[param]
+    if not state:
+        group = optimizer.param_groups[0]
+        on_device = group["capturable"] or group["fused"]
+        state["step"] = torch.zeros((), dtype=torch.float32 if group["fused"] else torch.get_default_dtype(),
+                                    device=param.device if on_device else "cpu")
+        moments = ("exp_avg", "exp_avg_sq", "max_exp_avg_sq") if group["amsgrad"] else ("exp_avg", "exp_avg_sq")
+        for name in moments:
+            state[name] = torch.zeros_like(param, memory_format=torch.preserve_format)
+    return state
 
 
 def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:

@@ -1,10 +1,13 @@
 """Optimiser updates per second of each loss, and frames per second of the whole training loop.
 
-1. Updates: one Adam step (loss, backward, gradient clipping, target-update bookkeeping) on a batch of 64
-   transitions, for DQN, Double DQN and ADFQ, on the 1-target network (3 x 128, 8 inputs) and the 3-target
-   network (3 x 256, 20 inputs); median over 5 windows.
+1. Updates: one Adam step (loss, backward, gradient clipping, target-update bookkeeping; ``aia.train.Updater``,
+   the training loop's) on a batch of 64 transitions, for DQN, Double DQN and ADFQ, on the 1-target network
+   (3 x 128, 8 inputs) and the 3-target network (3 x 256, 20 inputs), eager and compiled
+   (``compile.update=true``); median over 5 windows, and the compiled variant's first call (compilation).
 2. Loop: ``aia.train.train`` in the paper's regime (one world, one update per frame, evaluation after
-   every episode) after the warm-up, frames per second of the whole job.
+   every episode) after the warm-up, frames per second of the whole job, eager and with every ``compile.*``
+   switch on; each job runs twice in one process (the first run includes compilation, its time is reported
+   too) and the second gives the frames per second.
 
 Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<device>.json``).
 
@@ -26,10 +29,11 @@ from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
 from aia.envs import make_env
-from aia.train import make_actor, make_loss, train, update
+from aia.train import Updater, make_actor, make_loss, train
 
 SETTINGS = {"empty1": "3x128", "small3": "3x256"}
 EXPERIMENTS = {"empty1": "paper_empty1", "small3": "paper_small3"}
+LOOP_SWITCHES = ("update", "env")  # the compile.* switches of conf/train.yaml
 
 
 def _config(*overrides: str):
@@ -37,8 +41,9 @@ def _config(*overrides: str):
         return compose(config_name="train", overrides=list(overrides))
 
 
-def measure_updates(setting: str, algo: str, device: str, updates: int = 200, repeats: int = 5) -> dict:
-    """Median time of one optimiser step on a batch of 64 replayed transitions."""
+def measure_updates(setting: str, algo: str, device: str, compile: bool, updates: int = 200,
+                    repeats: int = 5) -> dict:
+    """Median time of one optimiser step on a batch of 64 replayed transitions (and of the first step)."""
     exploration = "thompson" if algo == "adfq" else "egreedy"
     cfg = _config(f"experiment={EXPERIMENTS[setting]}", f"algo={algo}", f"exploration={exploration}",
                   f"device={device}")
@@ -47,11 +52,14 @@ def measure_updates(setting: str, algo: str, device: str, updates: int = 200, re
     batch = env.rollout(2, policy=actor)[:, -1]  # 64 transitions with the training keys
     loss = make_loss(cfg, actor)
     updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+    update = Updater(loss, torch.optim.Adam(loss.parameters(), lr=cfg.lr), updater, cfg.grad_clip, compile=compile)
 
     def step():
-        update(loss, optimizer, updater, batch.clone(), cfg.grad_clip)
+        update(batch.clone())
 
+    start = time.perf_counter()
+    step()
+    first = time.perf_counter() - start
     for _ in range(20):
         step()
     windows = []
@@ -66,21 +74,29 @@ def measure_updates(setting: str, algo: str, device: str, updates: int = 200, re
         windows.append((time.perf_counter() - start) / updates)
     seconds = statistics.median(windows)
     return {"kind": "update", "setting": setting, "network": SETTINGS[setting], "algo": algo, "device": device,
-            "ms_per_update": 1e3 * seconds, "updates_per_s": 1 / seconds}
+            "compiled": compile, "ms_per_update": 1e3 * seconds, "updates_per_s": 1 / seconds,
+            "first_call_s": first}
 
 
-def measure_loop(algo: str, device: str, frames: int) -> dict:
-    """Frames per second of a whole paper-regime training job on empty1 (after a 500-frame warm-up)."""
+def measure_loop(algo: str, device: str, frames: int, compile: bool) -> dict:
+    """Frames per second of a whole paper-regime training job on empty1 (after a 500-frame warm-up).
+
+    The job runs twice in this process: the first run pays for compilation (``compile=True``: every switch
+    under ``compile`` of ``conf/train.yaml``), the second shows the steady state.
+    """
     exploration = "thompson" if algo == "adfq" else "egreedy"
+    switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
     cfg = _config(f"algo={algo}", f"exploration={exploration}", f"frames={frames}", "logger=none",
-                  f"device={device}")
-    with tempfile.TemporaryDirectory() as out:
-        start = time.perf_counter()
-        state = train(cfg, Path(out))
-        seconds = time.perf_counter() - start
-    return {"kind": "loop", "setting": "empty1", "algo": algo, "device": device, "frames": state.frames,
-            "updates": state.updates, "evaluations": state.evaluations, "seconds": seconds,
-            "frames_per_s": state.frames / seconds}
+                  f"device={device}", *switches)
+    seconds = []
+    for _ in range(2):
+        with tempfile.TemporaryDirectory() as out:
+            start = time.perf_counter()
+            state = train(cfg, Path(out))
+            seconds.append(time.perf_counter() - start)
+    return {"kind": "loop", "setting": "empty1", "algo": algo, "device": device, "compiled": compile,
+            "frames": state.frames, "updates": state.updates, "evaluations": state.evaluations,
+            "first_run_s": seconds[0], "seconds": seconds[1], "frames_per_s": state.frames / seconds[1]}
 
 
 def main() -> None:
@@ -91,18 +107,22 @@ def main() -> None:
     args = parser.parse_args()
 
     rows = []
-    print(f"{'network':<8}{'algo':<6}{'ms/update':>11}{'updates/s':>11}")
+    print(f"{'network':<8}{'algo':<6}{'mode':<10}{'ms/update':>11}{'updates/s':>11}{'first call s':>14}")
     for setting in SETTINGS:
         for algo in ("dqn", "ddqn", "adfq"):
-            row = measure_updates(setting, algo, args.device)
-            rows.append(row)
-            print(f"{row['network']:<8}{algo:<6}{row['ms_per_update']:>11.2f}{row['updates_per_s']:>11,.0f}",
-                  flush=True)
-    print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'frames/s':>10}")
+            for compile in (False, True):
+                row = measure_updates(setting, algo, args.device, compile)
+                rows.append(row)
+                mode = "compiled" if compile else "eager"
+                print(f"{row['network']:<8}{algo:<6}{mode:<10}{row['ms_per_update']:>11.2f}"
+                      f"{row['updates_per_s']:>11,.0f}{row['first_call_s']:>14.1f}", flush=True)
+    print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'frames/s':>10}{'first run s':>13}")
     for algo in ("dqn", "ddqn", "adfq"):
-        row = measure_loop(algo, args.device, args.loop_frames)
-        rows.append(row)
-        print(f"{algo:<40}{row['frames_per_s']:>10,.0f}", flush=True)
+        for compile in (False, True):
+            row = measure_loop(algo, args.device, args.loop_frames, compile)
+            rows.append(row)
+            mode = "compiled" if compile else "eager"
+            print(f"{algo:<40}{mode:<10}{row['frames_per_s']:>10,.0f}{row['first_run_s']:>13.1f}", flush=True)
 
     out = args.out or Path(__file__).parent / "results" / f"train_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)

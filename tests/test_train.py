@@ -11,7 +11,7 @@ import torch
 from hydra import compose, initialize_config_module
 
 from aia.logging import read_run
-from aia.train import train
+from aia.train import Updater, make_actor, make_loss, train
 
 
 def _config(*overrides: str):
@@ -80,6 +80,65 @@ def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
     info, frames = run.episode("last")
     assert info.frame == 440 and len(frames) == 41
     assert run.topic_counts()["/log"] == ("foxglove.Log", 14)
+
+
+def _update_setup(algo: str):
+    """A loss with its Adam, a target copy every 2 updates, and 3 batches of 16 seeded transitions."""
+    from torchrl.objectives import HardUpdate
+
+    from aia.envs import make_env
+
+    cfg = _config(f"algo={algo}", "hidden=[32,32]")
+    torch.manual_seed(0)
+    env = make_env("empty1", batch_size=16, seed=0)
+    actor = make_actor(cfg, env)
+    rollout = env.rollout(3, policy=actor)
+    loss = make_loss(cfg, actor)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+    target_updater = HardUpdate(loss, value_network_update_interval=2)
+    return cfg, loss, optimizer, target_updater, [rollout[:, i] for i in range(3)]
+
+
+def _run_updates(algo: str, compile: bool | None, updates: int = 6) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """Losses and final parameters of ``updates`` steps; ``compile=None``: backward, clip_grad_norm_, Adam.step."""
+    cfg, loss, optimizer, target_updater, batches = _update_setup(algo)
+
+    def reference_update(batch):
+        out = loss(batch)
+        optimizer.zero_grad()
+        out["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.grad_clip)
+        optimizer.step()
+        target_updater.step()
+        return out
+
+    update = reference_update if compile is None else Updater(loss, optimizer, target_updater, cfg.grad_clip, compile)
+    losses = [update(batches[i % len(batches)].clone())["loss"].detach() for i in range(updates)]
+    return torch.stack(losses), [p.detach().clone() for p in loss.parameters()]
+
+
+@pytest.mark.parametrize("algo", ["dqn", "ddqn", "adfq"])
+def test_eager_updater_is_backward_clip_and_adam_step_bit_for_bit(algo):
+    reference_losses, reference_params = _run_updates(algo, compile=None)
+    losses, params = _run_updates(algo, compile=False)
+    assert torch.equal(losses, reference_losses)
+    assert all(torch.equal(p, q) for p, q in zip(params, reference_params, strict=True))
+    assert losses.unique().numel() == losses.numel()  # the updates changed the networks
+
+
+@pytest.mark.parametrize("algo", ["dqn", "adfq"])
+def test_compiled_update_gives_the_eager_losses_and_parameters(algo):
+    eager_losses, eager_params = _run_updates(algo, compile=False)
+    losses, params = _run_updates(algo, compile=True)
+    torch.testing.assert_close(losses, eager_losses, rtol=1e-5, atol=1e-5)
+    for p, q in zip(params, eager_params, strict=True):
+        torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-5)
+
+
+def test_updater_needs_a_single_group_adam(tmp_path):
+    _, loss, _, target_updater, _ = _update_setup("dqn")
+    with pytest.raises(TypeError, match="Adam"):
+        Updater(loss, torch.optim.SGD(loss.parameters(), lr=0.1), target_updater, 10.0)
 
 
 def test_bad_configs_name_the_field(tmp_path):
