@@ -3,6 +3,8 @@
     aia-log summary RUN...                         topics, counts, time span, config, recorded episodes, scores
     aia-log scalars RUN... --topic eval/score [--csv scores.csv]
     aia-log plot 'outputs/multirun/**/run.mcap' --metric eval/score --group-by algo --window 4 --out curves.png
+    aia-log plot outputs/repro/learners --where env.map=empty --group-by algo --group-by exploration --x episode \\
+        --window 4 --baseline outputs/repro/arvi --baseline-label ARVI --out empty1.png   # the paper's Fig. 2
     aia-log render RUN --episode last --out episode.gif        # or .png: a strip of --frames frames
 
 RUN arguments are files, folders (searched for ``*.mcap``) or globs. A run killed before it closed its log
@@ -20,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aia.logging.curves import learning_curves
+from aia.logging.curves import X_AXES, baseline_level, first_reaching, learning_curves, select_runs
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
 
 RENDER_FORMATS = (".gif", ".png")
@@ -93,21 +95,28 @@ def scalar_rows(runs: Sequence[RunLog], topics: Sequence[str]) -> list[dict[str,
     return rows
 
 
+X_LABELS = {"frame": "training frames", "episode": "training episodes", "evaluation": "evaluation"}
+
+
 def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: int, x_axis: str, out: Path,
-         title: str | None = None) -> list:
-    """Draw the learning curves (mean line, +-1 std band) of ``runs`` grouped by ``group_by`` into ``out``."""
+         title: str | None = None, baseline: tuple[str, float, float, int] | None = None) -> list:
+    """Draw the learning curves (mean line, +-1 std band) of ``runs`` grouped by ``group_by`` into ``out``,
+    with an optional ``baseline`` (label, mean, std, count) as a horizontal line and band."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    curves = learning_curves(runs, metric, group_by, window)
+    curves = learning_curves(runs, metric, group_by, window, x_axis)
     figure, axes = plt.subplots(figsize=(7, 4.5), dpi=120)
     for curve in curves:
-        x = curve.x if x_axis == "frame" else np.arange(1, len(curve.mean) + 1)
-        line, = axes.plot(x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
-        axes.fill_between(x, curve.mean - curve.std, curve.mean + curve.std, color=line.get_color(), alpha=0.2)
-    axes.set_xlabel("training frames" if x_axis == "frame" else "evaluation")
+        line, = axes.plot(curve.x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
+        axes.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, color=line.get_color(), alpha=0.2)
+    if baseline:
+        label, mean, std, count = baseline
+        axes.axhline(mean, color="black", linestyle="--", label=f"{label} ({count} values)")
+        axes.axhspan(mean - std, mean + std, color="black", alpha=0.08)
+    axes.set_xlabel(X_LABELS[x_axis])
     axes.set_ylabel(metric + (f" (moving average of {window})" if window > 1 else ""))
     axes.set_title(title or metric)
     axes.grid(alpha=0.3)
@@ -117,6 +126,25 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     figure.savefig(out)
     plt.close(figure)
     return curves
+
+
+def results_table(curves: Sequence, metric: str, x_axis: str, baseline: tuple[str, float, float, int] | None
+                  ) -> str:
+    """A markdown table: per group, its runs, the final mean and std of ``metric`` and, with a baseline,
+    where the mean first reaches the baseline's mean."""
+    header = f"| group | runs | final {metric} (mean +- std over runs) |"
+    rule = "|---|---:|---:|"
+    if baseline:
+        header += f" {X_LABELS[x_axis]} to reach {baseline[0]} ({baseline[1]:.1f} +- {baseline[2]:.1f}) |"
+        rule += "---:|"
+    rows = [header, rule]
+    for curve in curves:
+        row = f"| {curve.label} | {int(curve.runs.max())} | {curve.mean[-1]:.1f} +- {curve.std[-1]:.1f} |"
+        if baseline:
+            reached = first_reaching(curve, baseline[1])
+            row += f" {'never' if reached is None else f'{reached:.0f}'} |"
+        rows.append(row)
+    return "\n".join(rows)
 
 
 def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: float) -> tuple[int, int]:
@@ -178,7 +206,7 @@ def make_parser() -> argparse.ArgumentParser:
     """The ``aia-log`` argument parser."""
     parser = argparse.ArgumentParser(prog="aia-log", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(__doc__.split("\n")[2:7]))
+                                     epilog=__doc__.split("\n\n")[1])
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     runs_help = "MCAP files, folders or globs (quote '**' patterns)"
 
@@ -195,8 +223,14 @@ def make_parser() -> argparse.ArgumentParser:
     cmd.add_argument("--metric", default="eval/score", help="scalar topic to plot (default: eval/score)")
     cmd.add_argument("--group-by", action="append", default=[], metavar="KEY",
                      help="config key to group runs by, e.g. algo or env.num_targets (repeatable)")
+    cmd.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
+                     help="keep only runs whose config has this value, e.g. env.num_targets=2 (repeatable)")
     cmd.add_argument("--window", type=int, default=1, help="moving-average window per run (paper: 4)")
-    cmd.add_argument("--x", dest="x_axis", choices=("frame", "evaluation"), default="frame", help="x axis")
+    cmd.add_argument("--x", dest="x_axis", choices=X_AXES, default="frame",
+                     help="x axis: training frames (default), training episodes (the paper's) or evaluation index")
+    cmd.add_argument("--baseline", action="append", default=[], metavar="RUNS",
+                     help="runs whose metric values make a horizontal baseline band, e.g. aia-eval policy=arvi logs")
+    cmd.add_argument("--baseline-label", default="baseline", help="legend label of the baseline (e.g. ARVI)")
     cmd.add_argument("--title", help="figure title (default: the metric)")
     cmd.add_argument("--out", type=Path, default=Path("curves.png"), help="PNG to write (default: curves.png)")
 
@@ -233,11 +267,20 @@ def run_command(args: argparse.Namespace) -> None:
             raise ValueError(f"--window={args.window} must be >= 1")
         if args.out.suffix.lower() != ".png":
             raise ValueError(f"--out {args.out}: plot writes a .png file")
-        curves = plot(_read_all(args.runs), args.metric, args.group_by, args.window, args.x_axis, args.out,
-                      args.title)
+        runs = select_runs(_read_all(args.runs), args.where)
+        if not runs:
+            raise ValueError(f"no run matches --where {args.where}")
+        baseline = None
+        if args.baseline:
+            baseline_runs = select_runs(_read_all(args.baseline), args.where)
+            if not baseline_runs:
+                raise ValueError(f"no baseline run matches --where {args.where}")
+            baseline = (args.baseline_label, *baseline_level(baseline_runs, args.metric))
+        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baseline)
         for curve in curves:
             print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "
                   f"+- {curve.std[-1]:.1f}")
+        print(results_table(curves, args.metric, args.x_axis, baseline))
         print(f"plot written to {args.out}")
     elif args.command == "render":
         width, height = render(read_run(args.run), args.episode, args.out, args.size, args.frames, args.fps)

@@ -56,12 +56,57 @@ def group_label(run: RunLog, keys: Sequence[str]) -> str:
     return ", ".join(f"{key}={run.config_value(key)}" for key in keys) or "all"
 
 
-def learning_curves(runs: Sequence[RunLog], metric: str, group_by: Sequence[str] = (), window: int = 1
-                    ) -> list[Curve]:
+X_AXES = ("frame", "episode", "evaluation")
+
+
+def run_x(run: RunLog, frames: np.ndarray, x_axis: str) -> np.ndarray:
+    """The x values of a run's evaluations: training frames, training episodes (frames over the episode
+    length ``env.max_steps``: episodes end only at the time limit) or the evaluation's index (1, 2, ...)."""
+    if x_axis == "frame":
+        return frames
+    if x_axis == "evaluation":
+        return np.arange(1, len(frames) + 1, dtype=float)
+    if x_axis == "episode":
+        length = run.config_value("env.max_steps")
+        if not isinstance(length, int) or length < 1:
+            raise ValueError(f"{run.path}: no env.max_steps in its config, so no episode axis; use --x frame")
+        return frames / length
+    raise ValueError(f"x axis {x_axis!r} is not one of {list(X_AXES)}")
+
+
+def select_runs(runs: Sequence[RunLog], where: Sequence[str]) -> list[RunLog]:
+    """The runs whose config matches every ``KEY=VALUE`` of ``where`` (values compared as text)."""
+    conditions = []
+    for condition in where:
+        key, sep, value = condition.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--where {condition!r} must look like KEY=VALUE, e.g. env.num_targets=2")
+        conditions.append((key, value))
+    return [run for run in runs if all(str(run.config_value(k)) == v for k, v in conditions)]
+
+
+def learning_curves(runs: Sequence[RunLog], metric: str, group_by: Sequence[str] = (), window: int = 1,
+                    x_axis: str = "frame") -> list[Curve]:
     """One :class:`Curve` of ``metric`` per group of ``runs`` (grouped by the config values at
     ``group_by``), sorted by label."""
     groups: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     for run in runs:
         series = run.scalars(metric)
-        groups.setdefault(group_label(run, group_by), []).append((series.frames, series.values))
+        groups.setdefault(group_label(run, group_by), []).append((run_x(run, series.frames, x_axis), series.values))
     return [aggregate(label, groups[label], window) for label in sorted(groups)]
+
+
+def baseline_level(runs: Sequence[RunLog], metric: str) -> tuple[float, float, int]:
+    """Mean and std (ddof 0) of every ``metric`` value of ``runs`` (e.g. ARVI's score over its seeds), and
+    how many values there are."""
+    values = np.concatenate([run.scalars(metric).values for run in runs])
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        raise ValueError(f"the baseline runs have no finite {metric!r} values")
+    return float(values.mean()), float(values.std()), int(values.size)
+
+
+def first_reaching(curve: Curve, level: float) -> float | None:
+    """The first x at which the curve's mean reaches ``level`` (None if it never does)."""
+    reached = np.flatnonzero(curve.mean >= level)
+    return float(curve.x[reached[0]]) if reached.size else None

@@ -13,9 +13,9 @@ from aia.envs import make_env
 from aia.logging import MCAPLogger, SceneRecorder
 
 
-def _fake_run(folder, algo, seed, scores):
+def _fake_run(folder, algo, seed, scores, env_map="empty"):
     logger = MCAPLogger("exp", folder)
-    logger.log_hparams({"algo": {"name": algo}, "seed": seed, "env": {"map": "empty"}})
+    logger.log_hparams({"algo": {"name": algo}, "seed": seed, "env": {"map": env_map, "max_steps": 50}})
     for i, score in enumerate(scores):
         logger.log_scalar("eval/score", score, step=100 * (i + 1))
     logger.close()
@@ -83,6 +83,24 @@ def test_plot_aggregates_runs_per_group(tmp_path, capsys):
     assert "algo=dqn: 1 runs" in printed
     assert Image.open(out).format == "PNG"
     assert main(["plot", str(tmp_path / "m"), "--out", str(tmp_path / "c.jpg")]) == 2
+
+
+def test_plot_with_a_baseline_filters_and_the_episode_axis(tmp_path, capsys):
+    _fake_run(tmp_path / "m/0", "adfq", 0, [1.0, 2.0, 6.0])
+    _fake_run(tmp_path / "m/1", "adfq", 1, [3.0, 6.0, 8.0])
+    _fake_run(tmp_path / "m/2", "adfq", 2, [9.0, 9.0, 9.0], env_map="obstacles4")  # filtered out
+    for seed, score in enumerate([4.0, 5.0]):
+        _fake_run(tmp_path / f"arvi/{seed}", "arvi", seed, [score])
+    out = tmp_path / "fig2.png"
+    assert main(["plot", str(tmp_path / "m"), "--where", "env.map=empty", "--group-by", "algo", "--x", "episode",
+                 "--baseline", str(tmp_path / "arvi"), "--baseline-label", "ARVI", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    # means per evaluation 2, 4, 7 at episodes 2, 4, 6 (frames 100, 200, 300 over 50-step episodes):
+    # ARVI's mean 4.5 is first reached at episode 6
+    assert "| algo=adfq | 2 | 7.0 +- 1.0 | 6 |" in printed
+    assert "training episodes to reach ARVI (4.5 +- 0.5)" in printed
+    assert main(["plot", str(tmp_path / "m"), "--where", "env.map", "--out", str(out)]) == 2
+    assert "--where 'env.map' must look like KEY=VALUE" in capsys.readouterr().err
 
 
 def test_render_png_strip_and_gif(recorded, tmp_path, capsys):
