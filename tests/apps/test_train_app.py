@@ -56,3 +56,12 @@ def test_a_killed_run_keeps_its_log(tmp_path, signum):
     run = read_run(log)
     assert run.complete == (signum == signal.SIGTERM)
     assert len(run.scalars("eval/score").values) >= scores
+
+
+@pytest.mark.parametrize("method, algo, exploration", [("dqn", "dqn", "egreedy"), ("ddqn", "ddqn", "egreedy"),
+                                                       ("adfq_egreedy", "adfq", "egreedy"),
+                                                       ("adfq_ts", "adfq", "thompson")])
+def test_method_sets_algo_and_exploration(method, algo, exploration):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=[f"method={method}", "experiment=paper_small3"])
+    assert (cfg.algo.name, cfg.exploration.name, cfg.env.num_targets) == (algo, exploration, 3)
