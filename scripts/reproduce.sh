@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# Reproduce the paper's comparison (SPEC 11): for each setting, DQN, Double DQN, ADFQ-egreedy and ADFQ-TS with
+# 5 seeds each, ARVI with 10 seeds, then the Fig. 2 curves, a results table and a Fig. 3-style trajectory
+# picture of a learned ADFQ-TS policy. Everything is logged to MCAP under $OUT.
+#
+#   scripts/reproduce.sh                                  # the whole protocol (hours on a laptop CPU)
+#   SETTINGS="empty1" SEEDS=0,1 FRAMES=2000 ARVI_SEEDS=0,1 scripts/reproduce.sh   # a quick smoke run
+#
+# Environment variables (defaults in brackets):
+#   SETTINGS     settings to run [empty1 obstacles1 small2 small3]
+#   SEEDS        learner seeds [0,1,2,3,4];  ARVI_SEEDS  planner seeds [0,...,9]
+#   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
+#   JOBS         learner runs in parallel [2];  OUT  output folder [outputs/repro]
+#   FIGURES      where the figures and tables go [$OUT/figures]
+#   ARVI_EPISODES  episodes per ARVI seed [5];  ARVI_BUDGET  seconds per plan [1.0, the reference's]
+set -euo pipefail
+
+SETTINGS=${SETTINGS:-"empty1 obstacles1 small2 small3"}
+SEEDS=${SEEDS:-0,1,2,3,4}
+ARVI_SEEDS=${ARVI_SEEDS:-0,1,2,3,4,5,6,7,8,9}
+JOBS=${JOBS:-2}
+OUT=${OUT:-outputs/repro}
+FIGURES=${FIGURES:-$OUT/figures}
+ARVI_EPISODES=${ARVI_EPISODES:-5}
+ARVI_BUDGET=${ARVI_BUDGET:-1.0}
+FRAMES_OVERRIDE=()
+if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
+
+declare -A WHERE=(
+  [empty1]="--where env.map=empty"
+  [obstacles1]="--where env.map=obstacles4"
+  [small2]="--where env.map=empty_small --where env.num_targets=2"
+  [small3]="--where env.map=empty_small --where env.num_targets=3"
+)
+mkdir -p "$FIGURES"
+start=$(date +%s)
+for setting in $SETTINGS; do
+  if [[ -z "${WHERE[$setting]:-}" ]]; then
+    echo "unknown setting '$setting': expected some of empty1 obstacles1 small2 small3" >&2
+    exit 2
+  fi
+  echo "== $setting: learners (seeds $SEEDS), $JOBS at a time"
+  aia-train -m "experiment=paper_$setting" method=dqn,ddqn,adfq_egreedy,adfq_ts "seed=$SEEDS" threads=1 \
+    "${FRAMES_OVERRIDE[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners"
+  echo "== $setting: ARVI (seeds $ARVI_SEEDS)"
+  aia-eval -m policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" threads=1 \
+    "planner.time_budget=$ARVI_BUDGET" "hydra.sweep.dir=$OUT/$setting/arvi"
+  echo "== $setting: Fig. 2 curves and results table"
+  # shellcheck disable=SC2086  # WHERE holds several words on purpose
+  aia-log plot "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration --x episode \
+    --window 4 --baseline "$OUT/$setting/arvi" --baseline-label ARVI --title "$setting" \
+    --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
+  echo "== $setting: Fig. 3-style trajectory of the first ADFQ-TS seed"
+  checkpoint=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 | xargs dirname | xargs dirname)
+  aia-eval "checkpoint=$checkpoint/checkpoints/last.pt" episodes=5 seed=0 threads=1 \
+    "hydra.run.dir=$OUT/$setting/trajectory"
+  aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
+    --out "$FIGURES/${setting}_trajectory.png"
+done
+echo "done in $(( $(date +%s) - start )) s; figures and tables in $FIGURES"
