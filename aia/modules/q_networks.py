@@ -93,6 +93,27 @@ def _unbatched_categorical(action_spec: TensorSpec) -> Categorical:
     return Categorical(action_spec.space.n, device=action_spec.device, dtype=action_spec.dtype)
 
 
+class _DirectOutputModule(TensorDictModule):
+    """A ``TensorDictModule`` that writes its tensor outputs into the input tensordict as they are.
+
+    tensordict 0.14 passes every output through ``TensorDict.from_any``, which returns a tensor unchanged but
+    first asks ``importlib.util.find_spec("pandas")``: a search of ``sys.path`` on every call when pandas is
+    not installed, about 0.1 ms per output, i.e. per policy step at batch size 1. Other cases (outputs that
+    are not tensors, a separate output tensordict) go through the parent's code.
+    """
+
+    def _write_to_tensordict(self, tensordict, tensors, tensordict_out=None, out_keys=None):
+        if tensordict_out is not None or self.inplace is not True or not all(isinstance(t, Tensor) for t in tensors):
+            return super()._write_to_tensordict(tensordict, tensors, tensordict_out, out_keys)
+        out_keys = self.out_keys_source if out_keys is None else out_keys
+        if len(tensors) != len(out_keys):
+            raise RuntimeError(f"{len(tensors)} outputs for the out_keys {list(out_keys)}")
+        for key, tensor in zip(out_keys, tensors, strict=True):
+            if key != "_":
+                tensordict.set(key, tensor)
+        return tensordict
+
+
 def make_qvalue_actor(
     network: nn.Module, action_spec: TensorSpec, in_key: str = "observation", adfq: bool = False
 ) -> TensorDictSequential:
@@ -105,5 +126,5 @@ def make_qvalue_actor(
     ``QValueModule`` needs to accept any leading batch shape (a batched spec makes it expect ``[B, B]``).
     """
     out_keys = ["action_value", "action_log_sd"] if adfq else ["action_value"]
-    value_module = TensorDictModule(network, in_keys=[in_key], out_keys=out_keys)
+    value_module = _DirectOutputModule(network, in_keys=[in_key], out_keys=out_keys)
     return TensorDictSequential(value_module, QValueModule(spec=_unbatched_categorical(action_spec)))

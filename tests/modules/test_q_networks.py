@@ -114,3 +114,28 @@ def test_rollout_with_actor(kind):
     assert torch.isfinite(traj["next", "reward"]).all()
     if "+" in kind:  # exploration actually changes actions away from the greedy ones
         assert len(action.unique()) > 3
+
+
+@pytest.mark.parametrize("adfq", [False, True])
+def test_actor_writes_what_a_plain_tensordict_module_writes_without_a_module_search(monkeypatch, adfq):
+    """The actor's value module skips tensordict's per-call ``find_spec("pandas")`` and writes the same."""
+    import importlib.util
+
+    from tensordict.nn import TensorDictModule
+
+    torch.manual_seed(0)
+    env = make_env("empty1", batch_size=4, seed=0)
+    network = ADFQNetwork(8, 12, hidden=(16,)) if adfq else make_q_network(8, 12, hidden=(16,))
+    actor = make_qvalue_actor(network, env.action_spec, adfq=adfq)
+    value = actor[0]
+    plain = TensorDictSequential(TensorDictModule(network, in_keys=value.in_keys, out_keys=value.out_keys), actor[1])
+    td = env.reset()
+    expected = plain(td.clone())
+
+    def no_search(name, package=None):
+        raise AssertionError(f"find_spec({name!r}) called")
+
+    monkeypatch.setattr(importlib.util, "find_spec", no_search)
+    out = actor(td.clone())
+    assert set(out.keys(True, True)) == set(expected.keys(True, True))
+    assert all(torch.equal(out[key], expected[key]) for key in expected.keys(True, True))
