@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import tempfile
@@ -127,7 +128,8 @@ def main() -> None:
     out = args.out or Path(__file__).parent / "results" / f"train_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
-            "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None}
+            "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
+            "load_average_1_5_15min": os.getloadavg()}  # other processes' CPU use distorts the timings
     out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
     print(f"wrote {out}")
 

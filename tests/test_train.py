@@ -135,6 +135,16 @@ def test_compiled_update_gives_the_eager_losses_and_parameters(algo):
         torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-5)
 
 
+def test_training_runs_with_every_compile_switch_on(tmp_path):
+    cfg = _config("algo=adfq", "exploration=thompson", "frames=300", "compile.update=true", "compile.env=true",
+                  *SMALL)
+    state = train(cfg, tmp_path)
+    assert state.frames == 300 and state.updates == 201 and len(state.eval_scores) == 7
+    assert all(math.isfinite(s) for s in state.eval_scores)
+    checkpoint = torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)
+    assert all(torch.isfinite(value).all() for value in checkpoint["actor"].values())
+
+
 def test_updater_needs_a_single_group_adam(tmp_path):
     _, loss, _, target_updater, _ = _update_setup("dqn")
     with pytest.raises(TypeError, match="Adam"):
