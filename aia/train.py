@@ -271,6 +271,8 @@ class Updater:
         self.target_updater = target_updater
         self.grad_clip = float(grad_clip)
         self._step = compiled_update(adam_step) if compile else adam_step
+        # Inside one graph the per-tensor Adam is fused anyway, and torch 2.13 cannot trace the foreach one.
+        self._adam_overrides = {"foreach": False} if compile else {}
 
     def __call__(self, batch: TensorDictBase) -> TensorDictBase:
         """Update on ``batch``; returns the loss module's output, detached."""
@@ -280,7 +282,7 @@ class Updater:
         losses = self._step(
             self.loss, batch, params, [s["exp_avg"] for s in states], [s["exp_avg_sq"] for s in states],
             [s["max_exp_avg_sq"] for s in states if "max_exp_avg_sq" in s], [s["step"] for s in states],
-            self.grad_clip, _adam_options(group),
+            self.grad_clip, {**_adam_options(group), **self._adam_overrides},
         )
         self.target_updater.step()
         return losses

@@ -82,7 +82,7 @@ def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
     assert run.topic_counts()["/log"] == ("foxglove.Log", 14)
 
 
-def _update_setup(algo: str):
+def _update_setup(algo: str, foreach: bool | None = None):
     """A loss with its Adam, a target copy every 2 updates, and 3 batches of 16 seeded transitions."""
     from torchrl.objectives import HardUpdate
 
@@ -94,14 +94,15 @@ def _update_setup(algo: str):
     actor = make_actor(cfg, env)
     rollout = env.rollout(3, policy=actor)
     loss = make_loss(cfg, actor)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr, foreach=foreach)
     target_updater = HardUpdate(loss, value_network_update_interval=2)
     return cfg, loss, optimizer, target_updater, [rollout[:, i] for i in range(3)]
 
 
-def _run_updates(algo: str, compile: bool | None, updates: int = 6) -> tuple[torch.Tensor, list[torch.Tensor]]:
+def _run_updates(algo: str, compile: bool | None, updates: int = 6, foreach: bool | None = None
+                 ) -> tuple[torch.Tensor, list[torch.Tensor]]:
     """Losses and final parameters of ``updates`` steps; ``compile=None``: backward, clip_grad_norm_, Adam.step."""
-    cfg, loss, optimizer, target_updater, batches = _update_setup(algo)
+    cfg, loss, optimizer, target_updater, batches = _update_setup(algo, foreach)
 
     def reference_update(batch):
         out = loss(batch)
@@ -126,10 +127,10 @@ def test_eager_updater_is_backward_clip_and_adam_step_bit_for_bit(algo):
     assert losses.unique().numel() == losses.numel()  # the updates changed the networks
 
 
-@pytest.mark.parametrize("algo", ["dqn", "adfq"])
-def test_compiled_update_gives_the_eager_losses_and_parameters(algo):
-    eager_losses, eager_params = _run_updates(algo, compile=False)
-    losses, params = _run_updates(algo, compile=True)
+@pytest.mark.parametrize("algo, foreach", [("dqn", True), ("adfq", None)])
+def test_compiled_update_gives_the_eager_losses_and_parameters(algo, foreach):
+    eager_losses, eager_params = _run_updates(algo, compile=False, foreach=foreach)
+    losses, params = _run_updates(algo, compile=True, foreach=foreach)
     torch.testing.assert_close(losses, eager_losses, rtol=1e-5, atol=1e-5)
     for p, q in zip(params, eager_params, strict=True):
         torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-5)
