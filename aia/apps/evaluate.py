@@ -61,6 +61,8 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
     policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec.n, epsilon, epsilon, 1, seed=seed,
                                                        device=device))
     frames = checkpoint["state"]["frames"]
+    if logger is not None:
+        logger.log_hparams(cfg)  # the trained policy's config (env, algo, ...)
     result = {"checkpoint": str(path), "algo": cfg.algo.name, "frames_trained": frames, "episodes": episodes,
               "epsilon": epsilon}
     return result | score_episodes(env, policy, logger, frames)
@@ -74,6 +76,9 @@ def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int
     planner = to_arvi_config(planner_cfg)
     env = make_env(to_tracking_config(env_cfg), batch_size=episodes, device=device, seed=seed)
     env.append_transform(StepCounter())  # ARVIPolicy re-plans on the episode's step count
+    if logger is not None:
+        logger.log_hparams(OmegaConf.create({"policy": "arvi", "env": env_cfg, "planner": planner_cfg,
+                                             "episodes": episodes, "seed": seed}))
     result = score_episodes(env, ARVIPolicy(env, planner), logger)
     parameters = {k: v if not isinstance(v, float) or math.isfinite(v) else str(v) for k, v in asdict(planner).items()}
     return {"policy": "arvi", "planner": parameters, "episodes": episodes} | result
@@ -120,12 +125,10 @@ def main(cfg: DictConfig) -> None:
     try:
         if cfg.policy == "checkpoint":
             result = evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device, logger)
-            logger.log_hparams(OmegaConf.merge(load_checkpoint(cfg.checkpoint)["config"], {"aia_eval": cfg}))
             what = f"{result['algo']} after {result['frames_trained']} frames"
             how = f"epsilon {cfg.epsilon}"
         else:
             result = evaluate_planner(cfg.env, cfg.planner, cfg.episodes, cfg.seed, cfg.device, logger)
-            logger.log_hparams(cfg)
             what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
     finally:
         logger.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Transform
 
+from aia.envs.tracking import TargetTrackingEnv
 from aia.logging import schemas
 from aia.logging.mcap_logger import MCAPLogger
 from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, FrameEncoder, WorldInfo, world_message
@@ -47,9 +48,10 @@ class SceneRecorder(Transform):
         """Record the next episode of the world, labelled with ``episode`` and the training ``frame``."""
         self._armed = (episode, frame)
 
-    def _env_config(self):
+    def _tracking_env(self) -> TargetTrackingEnv:
+        """The recorded env, checked: a tracking env that has the recorded world."""
         env = self.parent.base_env if self.parent is not None else None
-        if env is None or not hasattr(env, "config"):
+        if not isinstance(env, TargetTrackingEnv):
             raise RuntimeError("SceneRecorder must be a transform of a TargetTrackingEnv")
         if self.world >= env.batch_size[0]:
             raise ValueError(f"world={self.world} is out of range for an env of {env.batch_size[0]} worlds")
@@ -58,7 +60,7 @@ class SceneRecorder(Transform):
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         if self._armed is None:
             return tensordict_reset
-        env = self._env_config()
+        env = self._tracking_env()
         reset_mask = tensordict.get("_reset", None) if tensordict is not None else None
         if reset_mask is not None and not bool(reset_mask.reshape(-1)[self.world]):
             return tensordict_reset  # a partial reset that leaves the recorded world alone

@@ -53,7 +53,8 @@ def test_app_prints_and_writes_its_log(tmp_path, checkpoint):
     assert run.complete and len(run.scalars("eval/episode_score").values) == 3
     assert run.scalars("eval/score").values.tolist() == pytest.approx([json.loads(
         (tmp_path / "eval.json").read_text())["score_mean"]])
-    assert run.config_value("algo") == "dqn" and run.config_value("aia_eval.episodes") == 3
+    assert run.config_value("algo") == "dqn" and run.config_value("env.max_steps") == 40
+    assert run.metadata["run"]["policy"] == "checkpoint"
     info, frames = run.episode("first")
     assert info.frame == 200 and len(frames) == 41  # world 0's episode of 40 steps, labelled by frames trained
     assert len(json.loads((tmp_path / "eval.json").read_text())["scores"]) == 3
