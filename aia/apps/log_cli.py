@@ -69,7 +69,7 @@ def summary(run: RunLog) -> str:
         if topic in counts:
             series = run.scalars(topic)
             best = int(np.nanargmax(series.values)) if np.isfinite(series.values).any() else -1
-            lines.append(f"  {topic:<10}last {series.values[-1]:.1f} at frame {series.frames[-1]:.0f}; best "
+            lines.append(f"  {topic:<12}last {series.values[-1]:.1f} at frame {series.frames[-1]:.0f}; best "
                          f"{series.values[best]:.1f} at frame {series.frames[best]:.0f}; {len(series.values)} values")
     return "\n".join(lines)
 
