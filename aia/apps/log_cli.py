@@ -147,12 +147,30 @@ def results_table(curves: Sequence, metric: str, x_axis: str, baseline: tuple[st
     return "\n".join(rows)
 
 
-def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: float) -> tuple[int, int]:
-    """Write a recorded episode as a GIF (every step) or a PNG strip of ``frames`` evenly spaced steps (the
-    paper's Fig. 3: earlier robot and target positions as trails); returns the image's (width, height)."""
-    from PIL import Image
+def action_view(points: np.ndarray, margin: float, limit: tuple[float, float]
+                ) -> tuple[float, float, float, float] | None:
+    """The square around ``points [K, 2]`` padded by ``margin`` metres, or None when it would not be smaller
+    than the map (``limit``: its width and height)."""
+    points = points[np.isfinite(points).all(-1)]
+    if points.size == 0:
+        return None
+    low, high = points.min(0) - margin, points.max(0) + margin
+    side = float((high - low).max())
+    if side >= max(limit):
+        return None
+    centre = (low + high) / 2
+    return (centre[0] - side / 2, centre[1] - side / 2, centre[0] + side / 2, centre[1] + side / 2)
 
-    from aia.envs.render import render_frame
+
+def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: float, zoom: bool = True
+           ) -> tuple[int, int]:
+    """Write a recorded episode as a GIF (every step) or a PNG strip of ``frames`` evenly spaced steps (the
+    paper's Fig. 3: earlier robot and target positions as trails), zoomed on the episode's action (the square
+    around every robot, target and belief position, padded by the sensor range) when ``zoom`` and that square
+    is smaller than the map; returns the image's (width, height)."""
+    from PIL import Image, ImageDraw
+
+    from aia.envs.render import BORDER_COLOUR, render_frame
 
     if out.suffix.lower() not in RENDER_FORMATS:
         raise ValueError(f"--out {out}: the format must be one of {list(RENDER_FORMATS)}")
@@ -168,12 +186,17 @@ def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: fl
         shown = np.unique(np.linspace(0, len(steps) - 1, frames).round().astype(int)).tolist()
     robot_path = np.stack([step.robot_pose[:2] for step in steps])
     target_paths = np.stack([step.targets for step in steps])
+    view = None
+    if zoom:
+        view = action_view(np.concatenate([robot_path, target_paths.reshape(-1, 2),
+                                           np.concatenate([step.belief_mean for step in steps])]),
+                           margin=info.sensor_range, limit=(info.grid_map.width, info.grid_map.height))
 
     def draw(t: int) -> np.ndarray:
         step = steps[t]
         return render_frame(info.grid_map, step.robot_pose, step.targets, step.belief_mean, step.belief_cov,
                             info.sensor_range, info.fov_deg, size=size, observed=step.observed,
-                            robot_path=robot_path[:t], target_paths=target_paths[:t])
+                            robot_path=robot_path[:t], target_paths=target_paths[:t], view=view)
 
     images = [Image.fromarray(draw(t)) for t in shown]
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -181,8 +204,10 @@ def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: fl
         images[0].save(out, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
         return images[0].size
     strip = Image.new("RGB", (size * len(images), size))
+    outline = ImageDraw.Draw(strip)
     for i, image in enumerate(images):
         strip.paste(image, (i * size, 0))
+        outline.rectangle([i * size, 0, (i + 1) * size - 1, size - 1], outline=BORDER_COLOUR)
     strip.save(out)
     return strip.size
 
@@ -241,6 +266,8 @@ def make_parser() -> argparse.ArgumentParser:
     cmd.add_argument("--size", type=int, default=384, help="pixels per frame side (default: 384)")
     cmd.add_argument("--frames", type=int, default=6, help="frames in a PNG strip (default: 6)")
     cmd.add_argument("--fps", type=float, default=10.0, help="GIF frame rate (default: 10)")
+    cmd.add_argument("--whole-map", action="store_true",
+                     help="draw the whole map (default: zoom on the square where the episode happens)")
     return parser
 
 
@@ -283,7 +310,8 @@ def run_command(args: argparse.Namespace) -> None:
         print(results_table(curves, args.metric, args.x_axis, baseline))
         print(f"plot written to {args.out}")
     elif args.command == "render":
-        width, height = render(read_run(args.run), args.episode, args.out, args.size, args.frames, args.fps)
+        width, height = render(read_run(args.run), args.episode, args.out, args.size, args.frames, args.fps,
+                               zoom=not args.whole_map)
         print(f"{args.out} written ({width} x {height} pixels)")
 
 

@@ -50,6 +50,7 @@ def render_frame(
     observed: torch.Tensor | np.ndarray | None = None,
     robot_path: np.ndarray | None = None,
     target_paths: np.ndarray | None = None,
+    view: tuple[float, float, float, float] | None = None,
 ) -> np.ndarray:
     """An RGB frame ``uint8 [size, size, 3]`` of one world.
 
@@ -65,6 +66,8 @@ def render_frame(
         observed: optional ``[N]`` booleans; observed targets get an orange ring.
         robot_path: optional ``[K, 2]`` earlier robot positions, drawn as small blue dots (the paper's Fig. 3).
         target_paths: optional ``[K, N, 2]`` earlier true target positions, drawn as small red dots.
+        view: optional ``(x0, y0, x1, y1)`` in metres: draw only this rectangle (centred, aspect kept),
+            e.g. to zoom on the action in a large map; default: the whole map.
     """
     size = int(size)
     if size < 16:
@@ -89,9 +92,18 @@ def render_frame(
             raise ValueError(f"observed must be [N={num_targets}], got shape {list(seen.shape)}")
 
     width, height = float(grid_map.width), float(grid_map.height)
-    scale = size / max(width, height)  # pixels per metre
-    map_w, map_h = max(1, round(width * scale)), max(1, round(height * scale))
-    offset = np.array([(size - map_w) // 2, (size - map_h) // 2], dtype=np.float64)
+    if view is None:
+        scale = size / max(width, height)  # pixels per metre
+        map_w, map_h = max(1, round(width * scale)), max(1, round(height * scale))
+        offset = np.array([(size - map_w) // 2, (size - map_h) // 2], dtype=np.float64)  # the map's corner
+    else:
+        x0, y0, x1, y1 = (float(v) for v in view)
+        if not (x1 > x0 and y1 > y0):
+            raise ValueError(f"view={tuple(view)} must be (x0, y0, x1, y1) with x1 > x0 and y1 > y0")
+        scale = size / max(x1 - x0, y1 - y0)
+        map_w, map_h = max(1, round(width * scale)), max(1, round(height * scale))
+        centring = np.array([size - (x1 - x0) * scale, size - (y1 - y0) * scale]) / 2
+        offset = np.round(centring - np.array([x0, height - y1]) * scale)
 
     def to_pixels(xy: np.ndarray) -> np.ndarray:
         """Metres ``[..., 2]`` to pixel coordinates ``[..., 2]`` (column, row; y up in the world)."""

@@ -193,3 +193,15 @@ def test_trails_draw_earlier_positions():
     # 10 pixels per metre on this 27 m map: (3, 3) is pixel (30, 240), (3, 24) is (30, 30)
     assert tuple(trailed[240, 30]) == ROBOT_COLOUR and tuple(plain[240, 30]) == FREE_COLOUR
     assert tuple(trailed[30, 30]) == TARGET_COLOUR and tuple(plain[30, 30]) == FREE_COLOUR
+
+
+def test_view_zooms_on_a_rectangle_of_the_map():
+    grid = load_map("empty")  # 101 m
+    pose = np.array([30.0, 40.0, 0.0])
+    target = np.array([[34.0, 40.0, 0.0, 0.0]])
+    mean, cov = target.copy(), np.eye(4)[None] * 0.01
+    frame = render_frame(grid, pose, target, mean, cov, 5.0, 90.0, size=200, view=(24.0, 30.0, 44.0, 50.0))
+    # 10 pixels per metre: the target at (34, 40) is the centre pixel (100, 100)
+    assert tuple(frame[100, 100]) == TARGET_COLOUR
+    with pytest.raises(ValueError, match=r"view=\(5.0, 0.0, 5.0, 1.0\)"):
+        render_frame(grid, pose, target, mean, cov, 5.0, 90.0, size=200, view=(5.0, 0.0, 5.0, 1.0))
