@@ -6,6 +6,7 @@ import csv
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
 
 from aia.apps.log_cli import main
@@ -30,6 +31,7 @@ def recorded(tmp_path_factory):
     recorder = SceneRecorder(logger)
     env.append_transform(recorder)
     recorder.record(episode=2, frame=50)
+    torch.manual_seed(0)  # the rollout's random actions
     env.rollout(9, break_when_any_done=False)
     logger.log_scalar("eval/score", 12.5, step=50)
     logger.close()
@@ -108,7 +110,11 @@ def test_render_png_strip_and_gif(recorded, tmp_path, capsys):
     assert Image.open(tmp_path / "e.png").size == (4 * 64, 64)
     assert main(["render", str(recorded), "--episode", "2", "--out", str(tmp_path / "e.gif"), "--size", "80"]) == 0
     gif = Image.open(tmp_path / "e.gif")
-    assert gif.size == (80, 80) and gif.n_frames == 10
+    durations = []
+    for index in range(gif.n_frames):  # Pillow merges identical consecutive frames, adding their durations
+        gif.seek(index)
+        durations.append(gif.info["duration"])
+    assert gif.size == (80, 80) and sum(durations) == 10 * 100  # 10 steps at the default 10 frames/s
     assert main(["render", str(recorded), "--episode", "9", "--out", str(tmp_path / "x.gif")]) == 2
     assert "no recorded episode 9; recorded: [2]" in capsys.readouterr().err
     assert main(["render", str(recorded), "--out", str(tmp_path / "x.mp4")]) == 2
