@@ -31,7 +31,7 @@ from tqdm import tqdm
 from aia.compiling import compiled_update
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.evaluation import episode_scores, run_episodes
+from aia.evaluation import episode_scores, log_score_summary, run_episodes, score_summary
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.losses import ADFQLoss
 from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, check_exploration, make_q_network
@@ -325,16 +325,15 @@ def _adam_state(optimizer: torch.optim.Adam, param: Tensor) -> dict[str, Tensor]
 
 def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
     """One batched rollout of ``env.batch_size`` episodes at the evaluation epsilon; logs mean and std."""
-    scores = episode_scores(run_episodes(env, policy))
+    summary = score_summary(episode_scores(run_episodes(env, policy)))
     state.evaluations += 1
-    state.eval_scores.append(scores.mean().item())
+    state.eval_scores.append(summary["score_mean"])
     if logger:
-        logger.log_scalar("eval/score", scores.mean().item(), step=state.frames)
-        logger.log_scalar("eval/score_std", scores.std(correction=0).item(), step=state.frames)
+        log_score_summary(logger, summary, state.frames)
         if isinstance(logger, MCAPLogger):
             logger.log_text(f"evaluation {state.evaluations} after {state.episodes} training episodes "
-                            f"({state.frames} frames): score {scores.mean().item():.1f} "
-                            f"+- {scores.std(correction=0).item():.1f} over {scores.numel()} episodes")
+                            f"({state.frames} frames): score {summary['score_mean']:.1f} "
+                            f"+- {summary['score_std']:.1f} over {len(summary['scores'])} episodes")
         logger.flush()  # a run killed later keeps every evaluation so far
 
 

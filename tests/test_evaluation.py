@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
+import pytest
 import torch
 from tensordict import TensorDict
 
 from aia.envs import make_env
-from aia.evaluation import episode_scores, run_episodes
+from aia.evaluation import episode_scores, run_episodes, score_summary
 from aia.policies import RandomPolicy
 
 
@@ -23,3 +26,8 @@ def test_run_episodes_covers_one_episode_per_world_and_is_seeded():
     assert first.shape == (3, 25)
     assert first["next", "truncated"][:, -1].all() and not first["next", "truncated"][:, :-1].any()
     assert torch.equal(episode_scores(first), episode_scores(again))
+
+
+def test_score_summary_is_the_mean_and_population_std():
+    summary = score_summary(torch.tensor([1.0, 3.0, 8.0]))
+    assert summary == {"score_mean": 4.0, "score_std": pytest.approx(math.sqrt(26 / 3)), "scores": [1.0, 3.0, 8.0]}

@@ -23,7 +23,7 @@ from torchrl.envs import StepCounter
 
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.evaluation import episode_scores, run_episodes
+from aia.evaluation import episode_scores, log_score_summary, run_episodes, score_summary
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
@@ -93,23 +93,17 @@ def score_episodes(env, policy, logger: MCAPLogger | None, frame: int = 0) -> di
         env.append_transform(recorder)
         recorder.record(episode=0, frame=frame)
     scores = episode_scores(run_episodes(env, policy))
-    summary = _score_summary(scores)
+    summary = score_summary(scores)
     if logger is not None:
         for world, score in enumerate(summary["scores"]):
             logger.log_scalar("eval/episode_score", score, step=world)
-        logger.log_scalar("eval/score", summary["score_mean"], step=frame)
-        logger.log_scalar("eval/score_std", summary["score_std"], step=frame)
+        log_score_summary(logger, summary, frame)
     return summary
 
 
 def _check_episodes(episodes: int) -> None:
     if episodes < 1:
         raise ValueError(f"episodes={episodes} must be >= 1")
-
-
-def _score_summary(scores: torch.Tensor) -> dict:
-    return {"score_mean": scores.mean().item(), "score_std": scores.std(correction=0).item(),
-            "scores": scores.tolist()}
 
 
 @hydra.main(config_path="pkg://aia.conf", config_name="eval", version_base="1.3")

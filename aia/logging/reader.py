@@ -60,6 +60,7 @@ class RunLog:
     complete: bool = True          # the footer was read
     skipped_chunks: int = 0        # chunks dropped for a bad CRC or a broken compression
     problem: str | None = None     # why reading stopped before the footer
+    _config: dict[str, Any] | None = field(default=None, init=False, repr=False)
 
     def topic_counts(self) -> dict[str, tuple[str, int]]:
         """``topic -> (schema, message count)`` in order of first appearance."""
@@ -95,9 +96,11 @@ class RunLog:
         raise ValueError(f"{self.path}: no scalar topic {topic!r}; it has {known}")
 
     def config(self) -> dict[str, Any]:
-        """The run's resolved config (attachment ``config.yaml``), or ``{}`` when it was not logged."""
-        data = self.attachments.get("config.yaml")
-        return yaml.safe_load(data) or {} if data else {}
+        """The run's resolved config (attachment ``config.yaml``, parsed once), or ``{}`` when not logged."""
+        if self._config is None:
+            data = self.attachments.get("config.yaml")
+            self._config = yaml.safe_load(data) or {} if data else {}
+        return self._config
 
     def config_value(self, key: str) -> Any:
         """The value at dotted ``key`` in the config; a group (``algo``) reads as its ``name`` entry.
