@@ -12,7 +12,11 @@
 #   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
 #   JOBS         learner runs in parallel [2];  OUT  output folder [outputs/repro]
 #   FIGURES      where the figures and tables go [$OUT/figures]
-#   ARVI_EPISODES  episodes per ARVI seed [5];  ARVI_BUDGET  seconds per plan [1.0, the reference's]
+#   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
+#   ARVI_EPISODES  episodes per ARVI seed, planned together in one batch [5]
+#   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's]
+#   ARVI_NODES   if set, a deterministic budget of this many nodes per world instead of ARVI_BUDGET
+#                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU)
 set -euo pipefail
 
 SETTINGS=${SETTINGS:-"empty1 obstacles1 small2 small3"}
@@ -23,6 +27,12 @@ OUT=${OUT:-outputs/repro}
 FIGURES=${FIGURES:-$OUT/figures}
 ARVI_EPISODES=${ARVI_EPISODES:-5}
 ARVI_BUDGET=${ARVI_BUDGET:-1.0}
+METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
+if [[ -n "${ARVI_NODES:-}" ]]; then
+  ARVI_LIMIT=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
+else
+  ARVI_LIMIT=("planner.time_budget=$ARVI_BUDGET")
+fi
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
 
@@ -40,19 +50,21 @@ for setting in $SETTINGS; do
     exit 2
   fi
   echo "== $setting: learners (seeds $SEEDS), $JOBS at a time"
-  aia-train -m "experiment=paper_$setting" method=dqn,ddqn,adfq_egreedy,adfq_ts "seed=$SEEDS" threads=1 \
+  aia-train -m "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
     "${FRAMES_OVERRIDE[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners"
   echo "== $setting: ARVI (seeds $ARVI_SEEDS)"
   aia-eval -m policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" threads=1 \
-    "planner.time_budget=$ARVI_BUDGET" "hydra.sweep.dir=$OUT/$setting/arvi"
+    "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/arvi"
   echo "== $setting: Fig. 2 curves and results table"
   # shellcheck disable=SC2086  # WHERE holds several words on purpose
   aia-log plot "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration --x episode \
     --window 4 --baseline "$OUT/$setting/arvi" --baseline-label ARVI --title "$setting" \
     --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
   echo "== $setting: Fig. 3-style trajectory of the first ADFQ-TS seed"
-  checkpoint=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 | xargs dirname | xargs dirname)
-  aia-eval "checkpoint=$checkpoint/checkpoints/last.pt" episodes=5 seed=0 threads=1 \
+  config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
+  if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; continue; fi
+  run=$(dirname "$(dirname "$config")")
+  aia-eval "checkpoint=$run/checkpoints/last.pt" episodes=5 seed=0 threads=1 \
     "hydra.run.dir=$OUT/$setting/trajectory"
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
     --out "$FIGURES/${setting}_trajectory.png"
