@@ -36,6 +36,7 @@ from aia.logging import MCAPLogger, SceneRecorder
 from aia.losses import ADFQLoss
 from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, check_exploration, make_q_network
 from aia.modules.q_networks import make_qvalue_actor
+from aia.timing import PhaseTimer
 
 
 @dataclass
@@ -47,6 +48,7 @@ class TrainingState:
     episodes: int = 0
     evaluations: int = 0
     eval_scores: list[float] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)  # wall clock per phase of the loop (PhaseTimer)
 
 
 def make_actor(cfg: DictConfig, env) -> TensorDictSequential:
@@ -203,13 +205,21 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     )
     running_score = torch.zeros(num_envs, device=cfg.device)
     updates_owed = 0.0
+    timer = PhaseTimer(state.seconds)  # updates state.seconds in place
+    measured_before = sum(state.seconds.values())
     start = time.perf_counter()
     bar = tqdm(total=cfg.frames, initial=state.frames, unit="frame", unit_scale=True, desc=cfg.algo.name,
                mininterval=1.0)
+    batches = iter(collector)
     try:
-        for batch in collector:
+        while True:
+            with timer("collect"):
+                batch = next(batches, None)
+            if batch is None:
+                break
             batch = batch.reshape(-1)
-            buffer.extend(batch.select(*loss.in_keys))  # only what the loss reads: cheaper extend and sample
+            with timer("buffer"):
+                buffer.extend(batch.select(*loss.in_keys))  # only what the loss reads: cheaper extend and sample
             state.frames += batch.numel()
             if isinstance(exploration, EpsilonGreedy):
                 exploration.step(batch.numel())
@@ -220,9 +230,10 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
                 if logger:
                     logger.log_scalar("train/score", score, step=state.frames)
                 if state.episodes % cfg.eval.every_episodes == 0:
-                    if recorder and state.evaluations % cfg.logger.record_every_evaluations == 0:
-                        recorder.record(episode=state.episodes, frame=state.frames)
-                    evaluate(eval_env, eval_policy, state, logger)
+                    with timer("evaluate"):
+                        if recorder and state.evaluations % cfg.logger.record_every_evaluations == 0:
+                            recorder.record(episode=state.episodes, frame=state.frames)
+                        evaluate(eval_env, eval_policy, state, logger)
                     bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", **_exploration_status(exploration))
             running_score[done] = 0.0
 
@@ -230,24 +241,32 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
                 updates_owed += cfg.updates_per_frame * batch.numel()
                 while updates_owed >= 1:
                     updates_owed -= 1
-                    losses = update(buffer.sample())
+                    with timer("buffer"):
+                        sample = buffer.sample()
+                    with timer("update"):
+                        losses = update(sample)
                     state.updates += 1
                     if logger and state.updates % 100 == 0:
                         logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
                         if isinstance(exploration, EpsilonGreedy):
                             logger.log_scalar("train/epsilon", exploration.epsilon, step=state.frames)
             if state.frames % cfg.checkpoint_every_frames < batch.numel():
-                save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer,
-                                exploration, buffer, env)
+                with timer("checkpoint"):
+                    save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer,
+                                    exploration, buffer, env)
             bar.update(batch.numel())
     finally:
         bar.close()
         collector.shutdown()
+        # logging, the progress bar and the loop's own bookkeeping
+        timer.add("other", time.perf_counter() - start - (sum(state.seconds.values()) - measured_before))
     save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer, exploration, buffer,
                     env)
     seconds = time.perf_counter() - start
     if logger:
         logger.log_scalar("train/frames_per_s", remaining / seconds, step=state.frames)
+        for phase, phase_seconds in state.seconds.items():
+            logger.log_scalar(f"time/{phase}_s", phase_seconds, step=state.frames)
     return state
 
 

@@ -32,6 +32,9 @@ def test_each_algorithm_trains_2000_frames_without_nan(tmp_path, algo, explorati
     assert len(state.eval_scores) == 10 and all(math.isfinite(s) for s in state.eval_scores)
     checkpoint = torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)
     assert checkpoint["state"]["frames"] == 2000
+    assert {"collect", "buffer", "update", "evaluate", "other"} <= set(state.seconds)
+    assert all(seconds >= 0 for seconds in state.seconds.values())
+    assert checkpoint["state"]["seconds"] == state.seconds
     for value in checkpoint["actor"].values():
         assert torch.isfinite(value).all()
 
@@ -50,6 +53,7 @@ def test_resume_continues_the_counters(tmp_path):
     assert first.frames == 200 and resumed.frames == 320
     assert resumed.updates == first.updates + 120
     assert resumed.eval_scores[: len(first.eval_scores)] == first.eval_scores
+    assert all(resumed.seconds[phase] > first.seconds[phase] for phase in ("collect", "update", "other"))
 
 
 def test_csv_logger_writes_the_curves(tmp_path):
@@ -74,6 +78,8 @@ def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
     assert scores.values.tolist() == pytest.approx(state.eval_scores)
     assert scores.frames.tolist() == [40.0 * k for k in range(1, 15)]
     assert len(run.scalars("train/loss").values) == 4  # one per 100 updates
+    for phase, seconds in state.seconds.items():
+        assert run.scalars(f"time/{phase}_s").values.tolist() == pytest.approx([seconds])
     assert run.config_value("algo") == "dqn" and run.config_value("env.max_steps") == 40
     assert run.metadata["run"]["seed"] == "0"
     assert run.episodes() == [1, 6, 11]  # the first of every 5 evaluations, labelled by training episode

@@ -16,6 +16,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from aia.timing import PhaseTimer
 from aia.train import train
 
 
@@ -47,6 +48,7 @@ def main(cfg: DictConfig) -> None:
         state = train(cfg, out_dir)
     last = f"{state.eval_scores[-1]:.1f}" if state.eval_scores else "n/a"
     print(f"{state.frames} frames, {state.episodes} episodes, {state.updates} updates; last eval score {last}")
+    print(f"time: {PhaseTimer(state.seconds).summary()}")
     if cfg.logger.name == "mcap":
         log = out_dir / cfg.logger.file
         print(f"log written to {log} (inspect: aia-log summary {log})")

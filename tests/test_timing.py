@@ -1,0 +1,40 @@
+"""aia.timing: phase totals with a fake clock, in place in the dict given, and the summary line."""
+
+from __future__ import annotations
+
+import pytest
+
+from aia import timing
+from aia.timing import PhaseTimer
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    now = [0.0]
+    monkeypatch.setattr(timing.time, "perf_counter", lambda: now[0])
+    return now
+
+
+def test_phases_accumulate_into_the_given_dict(clock):
+    seconds = {"update": 1.0}
+    timer = PhaseTimer(seconds)
+    with timer("update"):
+        clock[0] += 2.5
+    with timer("collect"):
+        clock[0] += 0.5
+    timer.add("other", 1.0)
+    assert seconds == {"update": 3.5, "collect": 0.5, "other": 1.0}
+    assert timer.seconds is seconds
+
+
+def test_a_phase_that_raises_is_still_counted(clock):
+    timer = PhaseTimer()
+    with pytest.raises(KeyError), timer("evaluate"):
+        clock[0] += 4.0
+        raise KeyError("boom")
+    assert timer.seconds == {"evaluate": 4.0}
+
+
+def test_summary_ranks_phases_by_time():
+    assert PhaseTimer({"collect": 1.0, "update": 3.0}).summary() == "update 75% (3.0 s), collect 25% (1.0 s)"
+    assert PhaseTimer().summary() == "no time measured"
