@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aia.logging.curves import X_AXES, baseline_level, first_reaching, learning_curves, select_runs
+from aia.logging.curves import TAIL_FRACTION, X_AXES, baseline_level, first_reaching, learning_curves, select_runs
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
 
 RENDER_FORMATS = (".gif", ".png")
@@ -130,16 +130,19 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
 
 def results_table(curves: Sequence, metric: str, x_axis: str, baseline: tuple[str, float, float, int] | None
                   ) -> str:
-    """A markdown table: per group, its runs, the final mean and std of ``metric`` and, with a baseline,
-    where the mean first reaches the baseline's mean."""
-    header = f"| group | runs | final {metric} (mean +- std over runs) |"
-    rule = "|---|---:|---:|"
+    """A markdown table: per group, its runs, the final mean and std of the (smoothed) ``metric``, the mean
+    and std over runs of each run's last 10 % of values and, with a baseline, where the mean first reaches
+    the baseline's mean."""
+    header = (f"| group | runs | final {metric} (mean +- std over runs) "
+              f"| last {TAIL_FRACTION:.0%} of evaluations (mean +- std over runs) |")
+    rule = "|---|---:|---:|---:|"
     if baseline:
         header += f" {X_LABELS[x_axis]} to reach {baseline[0]} ({baseline[1]:.1f} +- {baseline[2]:.1f}) |"
         rule += "---:|"
     rows = [header, rule]
     for curve in curves:
-        row = f"| {curve.label} | {int(curve.runs.max())} | {curve.mean[-1]:.1f} +- {curve.std[-1]:.1f} |"
+        row = (f"| {curve.label} | {int(curve.runs.max())} | {curve.mean[-1]:.1f} +- {curve.std[-1]:.1f} "
+               f"| {curve.tails.mean():.1f} +- {curve.tails.std():.1f} |")
         if baseline:
             reached = first_reaching(curve, baseline[1])
             row += f" {'never' if reached is None else f'{reached:.0f}'} |"

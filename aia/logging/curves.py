@@ -19,6 +19,18 @@ class Curve:
     mean: np.ndarray
     std: np.ndarray     # population std (ddof 0) over the runs present at that index
     runs: np.ndarray    # how many runs reach each index
+    tails: np.ndarray   # per run: the mean of its raw (unsmoothed) values over the last TAIL_FRACTION of them
+
+
+TAIL_FRACTION = 0.1  # the "end of training" level of a run: its last 10 % of evaluations (at least one)
+
+
+def tail_mean(values: np.ndarray, fraction: float = TAIL_FRACTION) -> float:
+    """Mean of the last ``fraction`` of ``values`` (at least the last one); NaN for no values."""
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        return float("nan")
+    return float(values[-max(1, round(fraction * values.size)):].mean())
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:
@@ -48,7 +60,8 @@ def aggregate(label: str, series: Sequence[tuple[np.ndarray, np.ndarray]], windo
     mean = np.where(present, ys, 0.0).sum(0) / counts
     std = np.sqrt(np.where(present, (ys - mean) ** 2, 0.0).sum(0) / counts)
     x_mean = np.nanmean(np.where(np.isfinite(xs), xs, np.nan), axis=0)
-    return Curve(label, x_mean, mean, std, counts)
+    tails = np.array([tail_mean(values) for _, values in series])
+    return Curve(label, x_mean, mean, std, counts, tails)
 
 
 def group_label(run: RunLog, keys: Sequence[str]) -> str:

@@ -99,7 +99,7 @@ def test_plot_with_a_baseline_filters_and_the_episode_axis(tmp_path, capsys):
     printed = capsys.readouterr().out
     # means per evaluation 2, 4, 7 at episodes 2, 4, 6 (frames 100, 200, 300 over 50-step episodes):
     # ARVI's mean 4.5 is first reached at episode 6
-    assert "| algo=adfq | 2 | 7.0 +- 1.0 | 6 |" in printed
+    assert "| algo=adfq | 2 | 7.0 +- 1.0 | 7.0 +- 1.0 | 6 |" in printed
     assert "training episodes to reach ARVI (4.5 +- 0.5)" in printed
     assert main(["plot", str(tmp_path / "m"), "--where", "env.map", "--out", str(out)]) == 2
     assert "--where 'env.map' must look like KEY=VALUE" in capsys.readouterr().err

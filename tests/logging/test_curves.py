@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aia.logging.curves import aggregate, moving_average
+from aia.logging.curves import aggregate, moving_average, tail_mean
 
 
 def test_moving_average_is_trailing_with_a_short_start():
@@ -24,5 +24,14 @@ def test_aggregate_three_runs_of_different_lengths():
     assert curve.mean.tolist() == pytest.approx([3.0, 5.0, 5.5])
     assert curve.std.tolist() == pytest.approx([np.std([1, 3, 5]), np.std([2, 4, 9]), np.std([3, 8])])
     assert curve.x.tolist() == pytest.approx([32 / 3, 62 / 3, 30.0])
+    assert curve.tails.tolist() == [3.0, 8.0, 9.0]  # 10 % of 2-3 values: the last one
     smoothed = aggregate("dqn", runs, window=2)
+    assert smoothed.tails.tolist() == curve.tails.tolist()  # raw values, not smoothed
     assert smoothed.mean[1] == pytest.approx(np.mean([1.5, 3.5, 7.0]))
+
+
+def test_tail_mean_is_over_the_last_tenth():
+    assert tail_mean(np.arange(20.0)) == pytest.approx(18.5)  # the last 2 of 20
+    assert tail_mean(np.arange(200.0)) == pytest.approx(np.mean(np.arange(180.0, 200.0)))
+    assert tail_mean(np.array([4.0])) == 4.0
+    assert np.isnan(tail_mean(np.array([])))
