@@ -202,6 +202,7 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
         init_random_frames=max(0, cfg.warmup_frames - state.frames), device=cfg.device,
         auto_register_policy_transforms=False,  # the Q-networks keep no recurrent state
         track_traj_ids=False,  # trajectory ids are not used (episodes end on done): saves a copy per step
+        return_same_td=True,  # no clone per batch: the loop copies what it keeps (into the replay buffer)
     )
     running_score = torch.zeros(num_envs, device=cfg.device)
     updates_owed = 0.0
