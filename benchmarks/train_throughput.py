@@ -7,11 +7,13 @@
 2. Loop: ``aia.train.train`` in the paper's regime (one world, one update per frame, evaluation after
    every episode) after the warm-up, frames per second of the whole job, eager and with every ``compile.*``
    switch on; each job runs twice in one process (the first run includes compilation, its time is reported
-   too) and the second gives the frames per second.
+   too) and the second gives the frames per second and the split of its time over the loop's phases
+   (``aia.timing.PhaseTimer``: collect, buffer, update, evaluate, checkpoint, other).
 
 Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<device>.json``).
 
     python benchmarks/train_throughput.py
+    python benchmarks/train_throughput.py --parts loop     # only the training loop
 """
 
 from __future__ import annotations
@@ -97,7 +99,8 @@ def measure_loop(algo: str, device: str, frames: int, compile: bool) -> dict:
             seconds.append(time.perf_counter() - start)
     return {"kind": "loop", "setting": "empty1", "algo": algo, "device": device, "compiled": compile,
             "frames": state.frames, "updates": state.updates, "evaluations": state.evaluations,
-            "first_run_s": seconds[0], "seconds": seconds[1], "frames_per_s": state.frames / seconds[1]}
+            "first_run_s": seconds[0], "seconds": seconds[1], "frames_per_s": state.frames / seconds[1],
+            "ms_per_frame_by_phase": {phase: 1e3 * t / state.frames for phase, t in state.seconds.items()}}
 
 
 def main() -> None:
@@ -105,11 +108,16 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--loop-frames", type=int, default=2000)
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--parts", default="updates,loop", help="comma-separated: updates, loop")
     args = parser.parse_args()
+    parts = set(args.parts.split(","))
+    if not parts or not parts <= {"updates", "loop"}:
+        parser.error(f"--parts {args.parts!r}: expected a comma-separated subset of updates,loop")
 
     rows = []
-    print(f"{'network':<8}{'algo':<6}{'mode':<10}{'ms/update':>11}{'updates/s':>11}{'first call s':>14}")
-    for setting in SETTINGS:
+    if "updates" in parts:
+        print(f"{'network':<8}{'algo':<6}{'mode':<10}{'ms/update':>11}{'updates/s':>11}{'first call s':>14}")
+    for setting in SETTINGS if "updates" in parts else ():
         for algo in ("dqn", "ddqn", "adfq"):
             for compile in (False, True):
                 row = measure_updates(setting, algo, args.device, compile)
@@ -117,19 +125,28 @@ def main() -> None:
                 mode = "compiled" if compile else "eager"
                 print(f"{row['network']:<8}{algo:<6}{mode:<10}{row['ms_per_update']:>11.2f}"
                       f"{row['updates_per_s']:>11,.0f}{row['first_call_s']:>14.1f}", flush=True)
-    print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'frames/s':>10}{'first run s':>13}")
-    for algo in ("dqn", "ddqn", "adfq"):
+    if "loop" in parts:
+        print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'frames/s':>10}{'first run s':>13}"
+              "  ms per frame by phase")
+    for algo in ("dqn", "ddqn", "adfq") if "loop" in parts else ():
         for compile in (False, True):
             row = measure_loop(algo, args.device, args.loop_frames, compile)
             rows.append(row)
             mode = "compiled" if compile else "eager"
-            print(f"{algo:<40}{mode:<10}{row['frames_per_s']:>10,.0f}{row['first_run_s']:>13.1f}", flush=True)
+            phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
+                               sorted(row["ms_per_frame_by_phase"].items(), key=lambda item: -item[1]))
+            print(f"{algo:<40}{mode:<10}{row['frames_per_s']:>10,.0f}{row['first_run_s']:>13.1f}  {phases}",
+                  flush=True)
 
     out = args.out or Path(__file__).parent / "results" / f"train_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
             "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
             "load_average_1_5_15min": os.getloadavg()}  # other processes' CPU use distorts the timings
+    measured = {"update" if part == "updates" else "loop" for part in parts}
+    if out.exists() and measured != {"update", "loop"}:  # a partial run keeps the other part's earlier rows
+        kept = [row for row in json.loads(out.read_text())["results"] if row["kind"] not in measured]
+        rows = kept + rows
     out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
     print(f"wrote {out}")
 
