@@ -230,6 +230,17 @@ def _read_all(patterns: Sequence[str]) -> list[RunLog]:
     return runs
 
 
+def _with_metric(runs: Sequence[RunLog], metric: str) -> list[RunLog]:
+    """The runs that have logged ``metric``; a warning names each one left out (e.g. a run just started)."""
+    kept = []
+    for run in runs:
+        if metric in run.scalar_topics():
+            kept.append(run)
+        else:
+            print(f"warning: {run.path}: no {metric!r} yet, left out", file=sys.stderr)
+    return kept
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The ``aia-log`` argument parser."""
     parser = argparse.ArgumentParser(prog="aia-log", description=__doc__.split("\n\n")[0],
@@ -297,14 +308,14 @@ def run_command(args: argparse.Namespace) -> None:
             raise ValueError(f"--window={args.window} must be >= 1")
         if args.out.suffix.lower() != ".png":
             raise ValueError(f"--out {args.out}: plot writes a .png file")
-        runs = select_runs(_read_all(args.runs), args.where)
+        runs = _with_metric(select_runs(_read_all(args.runs), args.where), args.metric)
         if not runs:
-            raise ValueError(f"no run matches --where {args.where}")
+            raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
         baseline = None
         if args.baseline:
-            baseline_runs = select_runs(_read_all(args.baseline), args.where)
+            baseline_runs = _with_metric(select_runs(_read_all(args.baseline), args.where), args.metric)
             if not baseline_runs:
-                raise ValueError(f"no baseline run matches --where {args.where}")
+                raise ValueError(f"no baseline run matches --where {args.where} and has {args.metric!r}")
             baseline = (args.baseline_label, *baseline_level(baseline_runs, args.metric))
         curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baseline)
         for curve in curves:

@@ -194,11 +194,20 @@ def _read_records(path: Path, stream) -> RunLog:
             raise RunLogError(f"{path}: not an MCAP file (bad magic bytes)") from None
         run.problem = "bad magic bytes at the end"
     except Exception as err:  # noqa: BLE001  (a cut or damaged record surfaces as struct, EOF, MCAP... errors)
-        if not schema_names and not channels and not run.metadata:
+        if not schema_names and not channels and not run.metadata and not _starts_with_magic(stream):
             raise RunLogError(f"{path}: not a readable MCAP file ({type(err).__name__})") from None
+        # a run that has only just started has its magic bytes (and header) but nothing else yet
         run.problem = f"file ends early or is damaged ({type(err).__name__})"
     run.messages.sort(key=lambda m: m.log_time)
     return run
+
+
+_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _starts_with_magic(stream) -> bool:
+    stream.seek(0)
+    return stream.read(len(_MAGIC)) == _MAGIC
 
 
 def find_runs(patterns: list[str]) -> list[Path]:

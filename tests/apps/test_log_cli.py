@@ -87,6 +87,20 @@ def test_plot_aggregates_runs_per_group(tmp_path, capsys):
     assert main(["plot", str(tmp_path / "m"), "--out", str(tmp_path / "c.jpg")]) == 2
 
 
+def test_plot_leaves_out_runs_without_the_metric(tmp_path, capsys):
+    _fake_run(tmp_path / "m/0", "adfq", 0, [1.0, 2.0, 3.0])
+    _fake_run(tmp_path / "m/1", "adfq", 1, [])  # no evaluation yet
+    (tmp_path / "m/2").mkdir()
+    (tmp_path / "m/2/run.mcap").write_bytes(b"\x89MCAP0\r\n")  # a run that has only just started
+    assert main(["plot", str(tmp_path / "m"), "--group-by", "algo", "--out", str(tmp_path / "c.png")]) == 0
+    captured = capsys.readouterr()
+    assert "algo=adfq: 1 runs, final eval/score 3.0" in captured.out
+    assert "m/1/run.mcap: no 'eval/score' yet, left out" in captured.err
+    assert "m/2/run.mcap: no 'eval/score' yet, left out" in captured.err
+    assert main(["plot", str(tmp_path / "m/1"), "--out", str(tmp_path / "c.png")]) == 2
+    assert "has 'eval/score'" in capsys.readouterr().err
+
+
 def test_plot_with_a_baseline_filters_and_the_episode_axis(tmp_path, capsys):
     _fake_run(tmp_path / "m/0", "adfq", 0, [1.0, 2.0, 6.0])
     _fake_run(tmp_path / "m/1", "adfq", 1, [3.0, 6.0, 8.0])

@@ -63,6 +63,9 @@ def test_files_that_are_not_logs(tmp_path):
     (tmp_path / "empty.mcap").write_bytes(b"")
     with pytest.raises(RunLogError, match="empty.mcap: not a readable MCAP file"):
         read_run(tmp_path / "empty.mcap")
+    (tmp_path / "magic.mcap").write_bytes(b"\x89MCAP0\r\n\x01\x05")  # a run that has only just started
+    started = read_run(tmp_path / "magic.mcap")
+    assert not started.complete and "ends early" in started.problem and started.messages == []
     with pytest.raises(RunLogError, match="no such file"):
         read_run(tmp_path / "missing.mcap")
 
