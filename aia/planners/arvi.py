@@ -61,6 +61,11 @@ class ARVIConfig:
     replan_every: int = 5
     # Points checked for collision along each primitive's arc (evenly spaced in time, the end included).
     arc_checks: int = 4
+    # The planner counts on a measurement of a predicted target only from this distance on (m). 0 is the
+    # sensing rule as written (SPEC 4); then the bearing's information, which grows as 1/r^2, draws the
+    # plan onto the belief mean itself, where the robot can sit blind to a target a few metres away
+    # (docs/planner.md, "Minimum planning range").
+    min_range: float = 0.0
 
     def __post_init__(self) -> None:
         validate(self)
@@ -75,7 +80,7 @@ def validate(cfg: ARVIConfig) -> None:
     for name in ("delta0", "delta_step"):
         if not getattr(cfg, name) > 0:
             raise ValueError(f"planner.{name}={getattr(cfg, name)!r} must be > 0")
-    for name in ("eps", "distance_offset"):
+    for name in ("eps", "distance_offset", "min_range"):
         if not getattr(cfg, name) >= 0:
             raise ValueError(f"planner.{name}={getattr(cfg, name)!r} must be >= 0 (eps may be inf)")
     if cfg.replan_every > cfg.horizon:
@@ -118,10 +123,11 @@ class TrackingModel(NamedTuple):
                    env.meas_noise.to(f64), env.log_det_cap, env.geometry)
 
 
-def visible_targets(model: TrackingModel, pose: Tensor, positions: Tensor) -> Tensor:
+def visible_targets(model: TrackingModel, pose: Tensor, positions: Tensor, min_range: float = 0.0) -> Tensor:
     """``[..., N]`` whether each target position ``[..., N, 2]`` is seen from ``pose [..., 3]``: the env's
-    sensing rule (:meth:`MapGeometry.in_view`, SPEC 4)."""
-    return model.geometry.in_view(pose, positions)[0]
+    sensing rule (:meth:`MapGeometry.in_view`, SPEC 4), and at least ``min_range`` away."""
+    visible, polar = model.geometry.in_view(pose, positions)
+    return visible & (polar[..., 0] >= min_range) if min_range > 0 else visible
 
 
 def predict_cov(model: TrackingModel, cov: Tensor) -> Tensor:
@@ -298,7 +304,8 @@ class ARVIPlanner:
         world = level.world.index_select(0, parent)
         predicted = predict_cov(model, level.cov.index_select(0, parents)).index_select(0, local)
         target_xy = positions.index_select(0, world)
-        cov = update_visible(model, predicted, child_pose, target_xy, visible_targets(model, child_pose, target_xy))
+        visible = visible_targets(model, child_pose, target_xy, self.config.min_range)
+        cov = update_visible(model, predicted, child_pose, target_xy, visible)
         cost = level.cost.index_select(0, parent) + belief.logdet(cov).sum(-1)
         return _Level(child_pose, cov, cost, world, parent, action, torch.zeros_like(cost, dtype=torch.bool))
 

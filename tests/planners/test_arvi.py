@@ -262,6 +262,28 @@ def test_arvi_beats_random_and_one_step_greedy_on_a_seeded_episode():
     assert planner > greedy + 1000 and planner > random + 1000
 
 
+def test_min_range_hides_close_predicted_targets():
+    env = make_env("empty1", transforms=False)
+    model = arvi.TrackingModel.from_env(env)
+    pose = torch.tensor([[50.0, 50.0, 0.0]])
+    ahead = torch.tensor([[[51.0, 50.0], [55.0, 50.0], [45.0, 50.0]]])  # 1 m and 5 m ahead, 5 m behind
+    assert arvi.visible_targets(model, pose, ahead).tolist() == [[True, True, False]]
+    assert arvi.visible_targets(model, pose, ahead, min_range=2.0).tolist() == [[False, True, False]]
+
+
+def test_min_range_keeps_the_robot_off_the_belief_mean():
+    """Seed 4: planning with the sensing rule as written, the robot drives onto the belief mean and tracks
+    poorly; counting on measurements only from 2 m on, it keeps the target in view."""
+    env = make_env("empty1", batch_size=1, seed=4)
+    env.append_transform(StepCounter())
+
+    def score(min_range: float) -> float:
+        policy = ARVIPolicy(env, _config(max_passes=10, min_range=min_range))
+        return episode_scores(run_episodes(env, policy, seed=4)).item()
+
+    assert score(2.0) > score(0.0) + 1000
+
+
 # -------------------------------------------------------------------------------------------- config
 def test_bad_parameters_are_named():
     with pytest.raises(ValueError, match="planner.horizon=0"):
@@ -272,6 +294,8 @@ def test_bad_parameters_are_named():
         ARVIConfig(time_budget=None)
     with pytest.raises(ValueError, match="planner.eps=-1"):
         ARVIConfig(eps=-1.0)
+    with pytest.raises(ValueError, match="planner.min_range=-0.5"):
+        ARVIConfig(min_range=-0.5)
     with pytest.raises(ValueError, match="invalid planner config.*horizn"):
         to_arvi_config({"horizn": 3})
     assert to_arvi_config({"horizon": 6, "eps": "inf"}) == ARVIConfig(horizon=6)
