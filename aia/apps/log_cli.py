@@ -5,6 +5,7 @@
     aia-log plot 'outputs/multirun/**/run.mcap' --metric eval/score --group-by algo --window 4 --out curves.png
     aia-log plot outputs/repro/learners --where env.map=empty --group-by algo --group-by exploration --x episode \\
         --window 4 --baseline outputs/repro/arvi --baseline-label ARVI --out empty1.png   # the paper's Fig. 2
+    aia-log plot ... --baseline arvi --baseline-label ARVI --baseline arvi_min2 --baseline-label "ARVI, 2 m"
     aia-log render RUN --episode last --out episode.gif        # or .png: a strip of --frames frames
 
 RUN arguments are files, folders (searched for ``*.mcap``) or globs. A run killed before it closed its log
@@ -98,10 +99,14 @@ def scalar_rows(runs: Sequence[RunLog], topics: Sequence[str]) -> list[dict[str,
 X_LABELS = {"frame": "training frames", "episode": "training episodes", "evaluation": "evaluation"}
 
 
+Baseline = tuple[str, float, float, int]  # label, mean, std, number of values
+BASELINE_STYLES = ("--", ":", "-.")
+
+
 def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: int, x_axis: str, out: Path,
-         title: str | None = None, baseline: tuple[str, float, float, int] | None = None) -> list:
+         title: str | None = None, baselines: Sequence[Baseline] = ()) -> list:
     """Draw the learning curves (mean line, +-1 std band) of ``runs`` grouped by ``group_by`` into ``out``,
-    with an optional ``baseline`` (label, mean, std, count) as a horizontal line and band."""
+    with each of ``baselines`` (label, mean, std, count) as a horizontal line and band."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -112,9 +117,9 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     for curve in curves:
         line, = axes.plot(curve.x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
         axes.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, color=line.get_color(), alpha=0.2)
-    if baseline:
-        label, mean, std, count = baseline
-        axes.axhline(mean, color="black", linestyle="--", label=f"{label} ({count} values)")
+    for k, (label, mean, std, count) in enumerate(baselines):
+        style = BASELINE_STYLES[k % len(BASELINE_STYLES)]
+        axes.axhline(mean, color="black", linestyle=style, label=f"{label} ({count} values)")
         axes.axhspan(mean - std, mean + std, color="black", alpha=0.08)
     axes.set_xlabel(X_LABELS[x_axis])
     axes.set_ylabel(metric + (f" (moving average of {window})" if window > 1 else ""))
@@ -128,26 +133,47 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     return curves
 
 
-def results_table(curves: Sequence, metric: str, x_axis: str, baseline: tuple[str, float, float, int] | None
-                  ) -> str:
+def results_table(curves: Sequence, metric: str, x_axis: str, baselines: Sequence[Baseline] = ()) -> str:
     """A markdown table: per group, its runs, the final mean and std of the (smoothed) ``metric``, the mean
-    and std over runs of each run's last 10 % of values and, with a baseline, where the mean first reaches
-    the baseline's mean."""
+    and std over runs of each run's last 10 % of values and, per baseline, where the mean first reaches the
+    baseline's mean."""
     header = (f"| group | runs | final {metric} (mean +- std over runs) "
               f"| last {TAIL_FRACTION:.0%} of evaluations (mean +- std over runs) |")
     rule = "|---|---:|---:|---:|"
-    if baseline:
-        header += f" {X_LABELS[x_axis]} to reach {baseline[0]} ({baseline[1]:.1f} +- {baseline[2]:.1f}) |"
+    for label, mean, std, _ in baselines:
+        header += f" {X_LABELS[x_axis]} to reach {label} ({mean:.1f} +- {std:.1f}) |"
         rule += "---:|"
     rows = [header, rule]
     for curve in curves:
         row = (f"| {curve.label} | {int(curve.runs.max())} | {curve.mean[-1]:.1f} +- {curve.std[-1]:.1f} "
                f"| {curve.tails.mean():.1f} +- {curve.tails.std():.1f} |")
-        if baseline:
-            reached = first_reaching(curve, baseline[1])
+        for _, mean, _, _ in baselines:
+            reached = first_reaching(curve, mean)
             row += f" {'never' if reached is None else f'{reached:.0f}'} |"
         rows.append(row)
     return "\n".join(rows)
+
+
+def read_baselines(paths: Sequence[str], labels: Sequence[str], where: Sequence[str], metric: str
+                   ) -> list[Baseline]:
+    """The baselines of ``--baseline`` / ``--baseline-label``: with one label or none, all ``paths`` pool into
+    one baseline; with one label per path, each path is a baseline of its own."""
+    if not paths:
+        return []
+    if len(labels) <= 1:
+        groups = [(labels[0] if labels else "baseline", list(paths))]
+    elif len(labels) == len(paths):
+        groups = [(label, [path]) for label, path in zip(labels, paths, strict=True)]
+    else:
+        raise ValueError(f"{len(labels)} --baseline-label for {len(paths)} --baseline: give one label (the runs "
+                         "pool into one baseline) or one per --baseline")
+    baselines = []
+    for label, group in groups:
+        runs = _with_metric(select_runs(_read_all(group), where), metric)
+        if not runs:
+            raise ValueError(f"no {label} run in {group} matches --where {list(where)} and has {metric!r}")
+        baselines.append((label, *baseline_level(runs, metric)))
+    return baselines
 
 
 def action_view(points: np.ndarray, margin: float, limit: tuple[float, float]
@@ -269,7 +295,8 @@ def make_parser() -> argparse.ArgumentParser:
                      help="x axis: training frames (default), training episodes (the paper's) or evaluation index")
     cmd.add_argument("--baseline", action="append", default=[], metavar="RUNS",
                      help="runs whose metric values make a horizontal baseline band, e.g. aia-eval policy=arvi logs")
-    cmd.add_argument("--baseline-label", default="baseline", help="legend label of the baseline (e.g. ARVI)")
+    cmd.add_argument("--baseline-label", action="append", default=[], metavar="LABEL",
+                     help="legend label of the baseline (e.g. ARVI); one per --baseline draws several baselines")
     cmd.add_argument("--title", help="figure title (default: the metric)")
     cmd.add_argument("--out", type=Path, default=Path("curves.png"), help="PNG to write (default: curves.png)")
 
@@ -311,17 +338,12 @@ def run_command(args: argparse.Namespace) -> None:
         runs = _with_metric(select_runs(_read_all(args.runs), args.where), args.metric)
         if not runs:
             raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
-        baseline = None
-        if args.baseline:
-            baseline_runs = _with_metric(select_runs(_read_all(args.baseline), args.where), args.metric)
-            if not baseline_runs:
-                raise ValueError(f"no baseline run matches --where {args.where} and has {args.metric!r}")
-            baseline = (args.baseline_label, *baseline_level(baseline_runs, args.metric))
-        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baseline)
+        baselines = read_baselines(args.baseline, args.baseline_label, args.where, args.metric)
+        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baselines)
         for curve in curves:
             print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "
                   f"+- {curve.std[-1]:.1f}")
-        print(results_table(curves, args.metric, args.x_axis, baseline))
+        print(results_table(curves, args.metric, args.x_axis, baselines))
         print(f"plot written to {args.out}")
     elif args.command == "render":
         width, height = render(read_run(args.run), args.episode, args.out, args.size, args.frames, args.fps,

@@ -119,6 +119,24 @@ def test_plot_with_a_baseline_filters_and_the_episode_axis(tmp_path, capsys):
     assert "--where 'env.map' must look like KEY=VALUE" in capsys.readouterr().err
 
 
+def test_plot_with_two_baselines(tmp_path, capsys):
+    _fake_run(tmp_path / "m/0", "adfq", 0, [1.0, 2.0, 6.0])
+    _fake_run(tmp_path / "m/1", "adfq", 1, [3.0, 6.0, 8.0])
+    for seed, score in enumerate([4.0, 5.0]):
+        _fake_run(tmp_path / f"weak/{seed}", "arvi", seed, [score])
+    _fake_run(tmp_path / "strong/0", "arvi", 0, [9.0])
+    out = tmp_path / "fig2.png"
+    arguments = ["plot", str(tmp_path / "m"), "--x", "episode", "--out", str(out),
+                 "--baseline", str(tmp_path / "weak"), "--baseline-label", "ARVI",
+                 "--baseline", str(tmp_path / "strong"), "--baseline-label", "ARVI 2 m"]
+    assert main(arguments) == 0
+    printed = capsys.readouterr().out
+    assert "to reach ARVI (4.5 +- 0.5) | training episodes to reach ARVI 2 m (9.0 +- 0.0) |" in printed
+    assert "| all | 2 | 7.0 +- 1.0 | 7.0 +- 1.0 | 6 | never |" in printed
+    assert main([*arguments, "--baseline-label", "third"]) == 2
+    assert "3 --baseline-label for 2 --baseline" in capsys.readouterr().err
+
+
 def test_render_png_strip_and_gif(recorded, tmp_path, capsys):
     assert main(["render", str(recorded), "--out", str(tmp_path / "e.png"), "--frames", "4", "--size", "64"]) == 0
     assert Image.open(tmp_path / "e.png").size == (4 * 64, 64)
