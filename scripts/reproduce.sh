@@ -17,6 +17,8 @@
 #   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's]
 #   ARVI_NODES   if set, a deterministic budget of this many nodes per world instead of ARVI_BUDGET
 #                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU)
+#   ARVI_MIN_RANGES  planner.min_range values, one ARVI baseline each [0 2]: 0 is ARVI as specified,
+#                2 keeps the plan off the belief mean (docs/planner.md, "Minimum planning range")
 set -euo pipefail
 
 SETTINGS=${SETTINGS:-"empty1 obstacles1 small2 small3"}
@@ -28,6 +30,7 @@ FIGURES=${FIGURES:-$OUT/figures}
 ARVI_EPISODES=${ARVI_EPISODES:-5}
 ARVI_BUDGET=${ARVI_BUDGET:-1.0}
 METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
+ARVI_MIN_RANGES=${ARVI_MIN_RANGES:-"0 2"}
 if [[ -n "${ARVI_NODES:-}" ]]; then
   ARVI_LIMIT=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
 else
@@ -52,14 +55,19 @@ for setting in $SETTINGS; do
   echo "== $setting: learners (seeds $SEEDS), $JOBS at a time"
   aia-train -m "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
     "${FRAMES_OVERRIDE[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners"
-  echo "== $setting: ARVI (seeds $ARVI_SEEDS)"
-  aia-eval -m policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" threads=1 \
-    "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/arvi"
+  baselines=()
+  for min_range in $ARVI_MIN_RANGES; do
+    name=arvi; label=ARVI
+    if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
+    echo "== $setting: $label (seeds $ARVI_SEEDS)"
+    aia-eval -m policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" threads=1 \
+      "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name"
+    baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
+  done
   echo "== $setting: Fig. 2 curves and results table"
   # shellcheck disable=SC2086  # WHERE holds several words on purpose
   aia-log plot "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration --x episode \
-    --window 4 --baseline "$OUT/$setting/arvi" --baseline-label ARVI --title "$setting" \
-    --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
+    --window 4 "${baselines[@]}" --title "$setting" --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
   echo "== $setting: Fig. 3-style trajectory of the first ADFQ-TS seed"
   config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
   if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; continue; fi
