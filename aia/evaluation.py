@@ -17,17 +17,37 @@ def episode_scores(rollout: TensorDictBase) -> Tensor:
     return -rollout.get(("next", "logdet_cov")).mean(-1).sum(-1)
 
 
-def score_summary(scores: Tensor) -> dict:
+def belief_errors(rollout: TensorDictBase) -> Tensor:
+    """``[B]`` mean distance (m) between the belief means and the true target positions of a ``[B, T]``
+    rollout, over its steps and targets: what the score (confidence, not accuracy) does not measure."""
+    mean = rollout.get(("next", "belief_mean"))[..., :2]
+    truth = rollout.get(("next", "target_state"))[..., :2]
+    return torch.linalg.vector_norm(mean - truth, dim=-1).mean((-1, -2))
+
+
+def score_summary(scores: Tensor, errors: Tensor | None = None) -> dict:
     """``score_mean``, ``score_std`` (population std, as the learning curves' band) and the ``scores`` of a
-    batch of episodes, as Python numbers."""
-    return {"score_mean": scores.mean().item(), "score_std": scores.std(correction=0).item(),
-            "scores": scores.tolist()}
+    batch of episodes, as Python numbers; with the episodes' :func:`belief_errors`, also their mean
+    ``belief_error``."""
+    summary = {"score_mean": scores.mean().item(), "score_std": scores.std(correction=0).item(),
+               "scores": scores.tolist()}
+    if errors is not None:
+        summary["belief_error"] = errors.mean().item()
+    return summary
+
+
+def evaluation_summary(rollout: TensorDictBase) -> dict:
+    """:func:`score_summary` of a rollout that covers one episode per world, with its belief error."""
+    return score_summary(episode_scores(rollout), belief_errors(rollout))
 
 
 def log_score_summary(logger: Logger, summary: dict, frame: int) -> None:
-    """An evaluation's ``eval/score`` (mean) and ``eval/score_std`` at step ``frame``."""
+    """An evaluation's ``eval/score`` (mean), ``eval/score_std`` and, when summarised, ``eval/belief_error``
+    (metres) at step ``frame``."""
     logger.log_scalar("eval/score", summary["score_mean"], step=frame)
     logger.log_scalar("eval/score_std", summary["score_std"], step=frame)
+    if "belief_error" in summary:
+        logger.log_scalar("eval/belief_error", summary["belief_error"], step=frame)
 
 
 def run_episodes(env: EnvBase, policy: Callable[[TensorDictBase], TensorDictBase], seed: int | None = None

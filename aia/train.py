@@ -31,7 +31,7 @@ from tqdm import tqdm
 from aia.compiling import compiled_update
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.evaluation import episode_scores, log_score_summary, run_episodes, score_summary
+from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.losses import ADFQLoss
 from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, check_exploration, make_q_network
@@ -345,7 +345,7 @@ def _adam_state(optimizer: torch.optim.Adam, param: Tensor) -> dict[str, Tensor]
 
 def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
     """One batched rollout of ``env.batch_size`` episodes at the evaluation epsilon; logs mean and std."""
-    summary = score_summary(episode_scores(run_episodes(env, policy)))
+    summary = evaluation_summary(run_episodes(env, policy))
     state.evaluations += 1
     state.eval_scores.append(summary["score_mean"])
     if logger:
@@ -353,7 +353,8 @@ def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
         if isinstance(logger, MCAPLogger):
             logger.log_text(f"evaluation {state.evaluations} after {state.episodes} training episodes "
                             f"({state.frames} frames): score {summary['score_mean']:.1f} "
-                            f"+- {summary['score_std']:.1f} over {len(summary['scores'])} episodes")
+                            f"+- {summary['score_std']:.1f} over {len(summary['scores'])} episodes, "
+                            f"belief error {summary['belief_error']:.1f} m")
         logger.flush()  # a run killed later keeps every evaluation so far
 
 

@@ -78,6 +78,8 @@ def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
     assert scores.values.tolist() == pytest.approx(state.eval_scores)
     assert scores.frames.tolist() == [40.0 * k for k in range(1, 15)]
     assert len(run.scalars("train/loss").values) == 4  # one per 100 updates
+    errors = run.scalars("eval/belief_error")
+    assert errors.frames.tolist() == scores.frames.tolist() and (errors.values > 0).all()
     for phase, seconds in state.seconds.items():
         assert run.scalars(f"time/{phase}_s").values.tolist() == pytest.approx([seconds])
     assert run.config_value("algo") == "dqn" and run.config_value("env.max_steps") == 40

@@ -23,7 +23,7 @@ from torchrl.envs import StepCounter
 
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.evaluation import episode_scores, log_score_summary, run_episodes, score_summary
+from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
@@ -92,8 +92,7 @@ def score_episodes(env, policy, logger: MCAPLogger | None, frame: int = 0) -> di
         recorder = SceneRecorder(logger)
         env.append_transform(recorder)
         recorder.record(episode=0, frame=frame)
-    scores = episode_scores(run_episodes(env, policy))
-    summary = score_summary(scores)
+    summary = evaluation_summary(run_episodes(env, policy))
     if logger is not None:
         for world, score in enumerate(summary["scores"]):
             logger.log_scalar("eval/episode_score", score, step=world)
@@ -126,8 +125,8 @@ def main(cfg: DictConfig) -> None:
             what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
     finally:
         logger.close()
-    print(f"{what}: score {result['score_mean']:.1f} +- {result['score_std']:.1f} over {cfg.episodes} episodes "
-          f"({how})")
+    print(f"{what}: score {result['score_mean']:.1f} +- {result['score_std']:.1f} over {cfg.episodes} episodes, "
+          f"belief error {result['belief_error']:.1f} m ({how})")
     out = out_dir / "eval.json"
     out.write_text(json.dumps(result, indent=2))
     print(f"log written to {out} and {logger.path} (world 0's episode recorded: aia-log render {logger.path})")

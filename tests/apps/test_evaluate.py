@@ -81,8 +81,10 @@ def test_app_runs_arvi_and_names_an_unknown_policy(tmp_path):
                "planner.time_budget=0.02", "threads=1", f"hydra.run.dir={tmp_path}"]
     result = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert "arvi: score" in result.stdout and "over 2 episodes (horizon 12, budget 0.02 s)" in result.stdout
-    assert json.loads((tmp_path / "eval.json").read_text())["policy"] == "arvi"
+    assert "arvi: score" in result.stdout and "over 2 episodes, belief error " in result.stdout
+    assert " m (horizon 12, budget 0.02 s)" in result.stdout
+    written = json.loads((tmp_path / "eval.json").read_text())
+    assert written["policy"] == "arvi" and written["belief_error"] > 0
     result = subprocess.run([*command[:3], "policy=mcts", f"hydra.run.dir={tmp_path}"], capture_output=True,
                             text=True, timeout=120)
     assert result.returncode != 0 and "policy='mcts' is not one of ['checkpoint', 'arvi']" in result.stderr
