@@ -344,7 +344,8 @@ def _adam_state(optimizer: torch.optim.Adam, param: Tensor) -> dict[str, Tensor]
 
 
 def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
-    """One batched rollout of ``env.batch_size`` episodes at the evaluation epsilon; logs mean and std."""
+    """One batched rollout of ``env.batch_size`` episodes at the evaluation epsilon; logs the score mean and std
+    and the belief error."""
     summary = evaluation_summary(run_episodes(env, policy))
     state.evaluations += 1
     state.eval_scores.append(summary["score_mean"])
