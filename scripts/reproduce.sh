@@ -19,6 +19,9 @@
 #                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU)
 #   ARVI_MIN_RANGES  planner.min_range values, one ARVI baseline each [0 2]: 0 is ARVI as specified,
 #                2 keeps the plan off the belief mean (docs/planner.md, "Minimum planning range")
+#
+# Each run's folder is named by what varies (e.g. $OUT/empty1/learners/method=adfq_ts,seed=3), so a later call
+# with more seeds or methods adds runs next to the ones already there instead of overwriting them.
 set -euo pipefail
 
 SETTINGS=${SETTINGS:-"empty1 obstacles1 small2 small3"}
@@ -36,6 +39,7 @@ if [[ -n "${ARVI_NODES:-}" ]]; then
 else
   ARVI_LIMIT=("planner.time_budget=$ARVI_BUDGET")
 fi
+RUN_NAME='hydra.sweep.subdir=${hydra.job.override_dirname}'
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
 
@@ -54,14 +58,16 @@ for setting in $SETTINGS; do
   fi
   echo "== $setting: learners (seeds $SEEDS), $JOBS at a time"
   aia-train -m "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
-    "${FRAMES_OVERRIDE[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners"
+    "${FRAMES_OVERRIDE[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners" \
+    "$RUN_NAME" 'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames]'
   baselines=()
   for min_range in $ARVI_MIN_RANGES; do
     name=arvi; label=ARVI
     if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
     echo "== $setting: $label (seeds $ARVI_SEEDS)"
     aia-eval -m policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" threads=1 \
-      "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name"
+      "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
+      'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
   done
   echo "== $setting: Fig. 2 curves and results table"
