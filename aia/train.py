@@ -4,8 +4,9 @@ A ``Collector`` steps ``collector.num_envs`` worlds under the exploring policy i
 ``ReplayBuffer(LazyTensorStorage)``; every collected frame buys ``updates_per_frame`` optimiser steps of the
 chosen loss (TorchRL's ``DQNLoss`` for DQN and Double DQN, :class:`~aia.losses.ADFQLoss` for ADFQ) with a
 hard target-network copy every ``target_update_interval`` steps. After every ``eval.every_episodes``
-training episodes, ``eval.episodes`` episodes run as one batched rollout at epsilon ``eval.epsilon`` and
-their score (SPEC 9) is logged.
+training episodes, ``eval.episodes`` episodes at epsilon ``eval.epsilon`` evaluate the policy and their score
+(SPEC 9) is logged; ``eval.per_rollout`` such evaluations play together in one batched rollout
+(:class:`~aia.evaluator.Evaluator`).
 """
 
 from __future__ import annotations
@@ -31,10 +32,18 @@ from tqdm import tqdm
 from aia.compiling import compiled_update
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
+from aia.evaluation import log_score_summary
+from aia.evaluator import Evaluator
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.losses import ADFQLoss
-from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, check_exploration, make_q_network
+from aia.modules import (
+    ADFQNetwork,
+    EpsilonGreedy,
+    ExploringQPolicy,
+    ThompsonSampling,
+    check_exploration,
+    make_q_network,
+)
 from aia.modules.q_networks import make_qvalue_actor
 from aia.timing import PhaseTimer
 
@@ -117,12 +126,17 @@ def check_config(cfg: DictConfig) -> None:
     check_exploration(cfg.algo.name, cfg.exploration.name)
     positive = {"frames": cfg.frames, "collector.num_envs": cfg.collector.num_envs, "batch_size": cfg.batch_size,
                 "buffer_size": cfg.buffer_size, "eval.episodes": cfg.eval.episodes,
-                "eval.every_episodes": cfg.eval.every_episodes, "target_update_interval": cfg.target_update_interval}
+                "eval.every_episodes": cfg.eval.every_episodes, "eval.per_rollout": cfg.eval.per_rollout,
+                "target_update_interval": cfg.target_update_interval}
     for name, value in positive.items():
         if value < 1:
             raise ValueError(f"{name}={value} must be >= 1")
     if not cfg.updates_per_frame > 0:
         raise ValueError(f"updates_per_frame={cfg.updates_per_frame} must be > 0")
+    record_every = cfg.logger.get("record_every_evaluations", 0)
+    if cfg.logger.name == "mcap" and record_every > 0 and cfg.eval.per_rollout > record_every:
+        raise ValueError(f"eval.per_rollout={cfg.eval.per_rollout} must be at most "
+                         f"logger.record_every_evaluations={record_every} (one recorded episode per rollout)")
 
 
 def save_checkpoint(path: Path, cfg: DictConfig, state: TrainingState, actor, loss, optimizer, exploration,
@@ -163,14 +177,11 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     env_config = to_tracking_config(cfg.env)
     env = make_env(env_config, batch_size=cfg.collector.num_envs, device=cfg.device, seed=cfg.seed,
                    compile=cfg.compile.env)
-    eval_env = make_env(env_config, batch_size=cfg.eval.episodes, device=cfg.device, seed=cfg.seed + 1_000_003,
+    eval_env = make_env(env_config, batch_size=cfg.eval.episodes * cfg.eval.per_rollout, device=cfg.device,
                         compile=cfg.compile.env)
     actor = make_actor(cfg, env)
     exploration = make_exploration(cfg, env.action_spec.n)
-    policy = TensorDictSequential(actor, exploration)
-    eval_greedy = EpsilonGreedy(env.action_spec.n, cfg.eval.epsilon, cfg.eval.epsilon, 1, seed=cfg.seed + 1,
-                                device=cfg.device)
-    eval_policy = TensorDictSequential(actor, eval_greedy)
+    policy = ExploringQPolicy(actor[0].module, exploration)  # acts as TensorDictSequential(actor, exploration)
     loss = make_loss(cfg, actor)
     target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
@@ -192,6 +203,10 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
         torch.set_rng_state(checkpoint["torch_rng"])
         state = TrainingState(**checkpoint["state"])
         print(f"resumed from {cfg.resume} at frame {state.frames} (the interrupted episode starts afresh)")
+    evaluator = Evaluator(eval_env, actor[0].module, env.action_spec.n, cfg.eval.episodes, cfg.eval.epsilon,
+                          seed=cfg.seed + 1_000_003, noise_seed=(cfg.seed + 1) * 1_000_003,
+                          first_index=state.evaluations, recorder=recorder,
+                          record_every=cfg.logger.get("record_every_evaluations", 0))
 
     num_envs = cfg.collector.num_envs
     remaining = cfg.frames - state.frames
@@ -231,11 +246,11 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
                 if logger:
                     logger.log_scalar("train/score", score, step=state.frames)
                 if state.episodes % cfg.eval.every_episodes == 0:
-                    with timer("evaluate"):
-                        if recorder and state.evaluations % cfg.logger.record_every_evaluations == 0:
-                            recorder.record(episode=state.episodes, frame=state.frames)
-                        evaluate(eval_env, eval_policy, state, logger)
-                    bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", **_exploration_status(exploration))
+                    evaluator.add(state.episodes, state.frames)
+            if evaluator.full:
+                with timer("evaluate"):
+                    evaluate(evaluator, state, logger)
+                bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", **_exploration_status(exploration))
             running_score[done] = 0.0
 
             if state.frames >= cfg.warmup_frames:
@@ -252,10 +267,14 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
                         if isinstance(exploration, EpsilonGreedy):
                             logger.log_scalar("train/epsilon", exploration.epsilon, step=state.frames)
             if state.frames % cfg.checkpoint_every_frames < batch.numel():
+                with timer("evaluate"):
+                    evaluate(evaluator, state, logger)  # a checkpoint keeps no pending evaluation
                 with timer("checkpoint"):
                     save_checkpoint(out_dir / "checkpoints" / "last.pt", cfg, state, actor, loss, optimizer,
                                     exploration, buffer, env)
             bar.update(batch.numel())
+        with timer("evaluate"):
+            evaluate(evaluator, state, logger)
     finally:
         bar.close()
         collector.shutdown()
@@ -343,20 +362,21 @@ def _adam_state(optimizer: torch.optim.Adam, param: Tensor) -> dict[str, Tensor]
     return state
 
 
-def evaluate(env, policy, state: TrainingState, logger: Logger | None) -> None:
-    """One batched rollout of ``env.batch_size`` episodes at the evaluation epsilon; logs the score mean and std
-    and the belief error."""
-    summary = evaluation_summary(run_episodes(env, policy))
-    state.evaluations += 1
-    state.eval_scores.append(summary["score_mean"])
-    if logger:
-        log_score_summary(logger, summary, state.frames)
-        if isinstance(logger, MCAPLogger):
-            logger.log_text(f"evaluation {state.evaluations} after {state.episodes} training episodes "
-                            f"({state.frames} frames): score {summary['score_mean']:.1f} "
-                            f"+- {summary['score_std']:.1f} over {len(summary['scores'])} episodes, "
-                            f"belief error {summary['belief_error']:.1f} m")
-        logger.flush()  # a run killed later keeps every evaluation so far
+def evaluate(evaluator: Evaluator, state: TrainingState, logger: Logger | None) -> None:
+    """Play the pending evaluations; log each one's score mean and std and belief error at its own frame."""
+    results = evaluator.flush()
+    for point, summary in results:
+        state.evaluations += 1
+        state.eval_scores.append(summary["score_mean"])
+        if logger:
+            log_score_summary(logger, summary, point.frame)
+            if isinstance(logger, MCAPLogger):
+                logger.log_text(f"evaluation {point.index + 1} after {point.episode} training episodes "
+                                f"({point.frame} frames): score {summary['score_mean']:.1f} "
+                                f"+- {summary['score_std']:.1f} over {len(summary['scores'])} episodes, "
+                                f"belief error {summary['belief_error']:.1f} m")
+    if logger and results:
+        logger.flush()  # a run killed later keeps every evaluation played so far
 
 
 def _exploration_status(exploration) -> dict[str, str]:

@@ -56,6 +56,14 @@ def test_resume_continues_the_counters(tmp_path):
     assert all(resumed.seconds[phase] > first.seconds[phase] for phase in ("collect", "update", "other"))
 
 
+def test_evaluations_per_rollout_change_nothing_but_speed(tmp_path):
+    one_by_one = train(_config("frames=400", "eval.per_rollout=1", *SMALL), tmp_path / "a")
+    together = train(_config("frames=400", "eval.per_rollout=3", *SMALL), tmp_path / "b")
+    assert len(together.eval_scores) == 10 and together.evaluations == 10
+    assert together.eval_scores == pytest.approx(one_by_one.eval_scores, rel=1e-5)
+    assert together.updates == one_by_one.updates
+
+
 def test_csv_logger_writes_the_curves(tmp_path):
     # a quarter of an update per frame: updates are owed across batches
     cfg = _config("frames=560", "updates_per_frame=0.25", "logger=csv",
@@ -69,7 +77,8 @@ def test_csv_logger_writes_the_curves(tmp_path):
 
 
 def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
-    cfg = _config("frames=560", "logger=mcap", "logger.record_every_evaluations=5",
+    # 4 evaluations per rollout: the recorded ones (0, 5, 10) fall at different places of their rollouts
+    cfg = _config("frames=560", "logger=mcap", "logger.record_every_evaluations=5", "eval.per_rollout=4",
                   *[o for o in SMALL if not o.startswith("logger")])
     state = train(cfg, tmp_path)
     run = read_run(tmp_path / "run.mcap")
@@ -163,6 +172,8 @@ def test_updater_needs_a_single_group_adam(tmp_path):
 def test_bad_configs_name_the_field(tmp_path):
     with pytest.raises(ValueError, match="thompson.*adfq.*dqn"):
         train(_config("exploration=thompson", *SMALL), tmp_path)
+    with pytest.raises(ValueError, match="eval.per_rollout=6 must be at most logger.record_every_evaluations=5"):
+        train(_config("eval.per_rollout=6", "logger=mcap", "logger.record_every_evaluations=5"), tmp_path)
     with pytest.raises(ValueError, match="collector.num_envs=0"):
         train(_config("collector.num_envs=0", *SMALL), tmp_path)
 

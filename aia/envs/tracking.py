@@ -169,6 +169,22 @@ class TargetTrackingEnv(EnvBase):
         self._world_key = rng.world_keys(seed, self.batch_size[0], self.device)
         self._episode.zero_()
 
+    def replay_streams(self, seed: int, worlds: Tensor, episodes: Tensor) -> None:
+        """Give world ``b`` the random stream of world ``worlds[b]`` of an env seeded with ``seed`` after
+        ``episodes[b]`` episodes: its next reset starts that world's episode ``episodes[b] + 1``.
+
+        One batch can so replay the episodes that several resets of a smaller env would meet (the training
+        loop plays several evaluations in one rollout this way). ``worlds`` and ``episodes`` are ``[B]``
+        integer tensors, ``worlds >= 0`` and ``episodes >= 0``.
+        """
+        B = self.batch_size[0]
+        worlds, episodes = torch.as_tensor(worlds), torch.as_tensor(episodes)
+        for name, value in (("worlds", worlds), ("episodes", episodes)):
+            if value.shape != (B,) or value.dtype.is_floating_point or bool((value < 0).any()):
+                raise ValueError(f"{name} must be {B} non-negative integers (one per world), got {value.tolist()}")
+        self._world_key = rng.world_keys(int(seed), int(worlds.max()) + 1, self.device)[worlds.to(self.device)]
+        self._episode.copy_(episodes)
+
     # ------------------------------------------------------------------ reset
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         B = self.batch_size[0]

@@ -13,13 +13,15 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+from torch import Tensor
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 ALGORITHMS = ("dqn", "ddqn", "adfq")
 EXPLORATIONS = ("egreedy", "thompson")
 
 
-def _exploring() -> bool:
+def exploring() -> bool:
+    """Whether exploration acts now: exploration type ``RANDOM`` or unset (TorchRL's convention)."""
     return exploration_type() in (ExplorationType.RANDOM, None)
 
 
@@ -73,14 +75,17 @@ class EpsilonGreedy(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Overwrite ``action`` where a uniform draw falls below ``epsilon`` (only when exploring)."""
-        if not _exploring():
+        if not exploring():
             return tensordict
         key = self.in_keys[0]
-        action = tensordict.get(key)
+        return tensordict.set(key, self.explore(tensordict.get(key)))
+
+    def explore(self, action: Tensor) -> Tensor:
+        """``action`` with each entry replaced by a uniform random one with probability ``epsilon``."""
         gen = self.generator
         explore = torch.rand(action.shape, generator=gen, device=gen.device) < self.epsilon
         random = torch.randint(0, self.num_actions, action.shape, generator=gen, device=gen.device)
-        return tensordict.set(key, torch.where(explore.to(action.device), random.to(action), action))
+        return torch.where(explore.to(action.device), random.to(action), action)
 
 
 class ThompsonSampling(TensorDictModuleBase):
@@ -98,14 +103,16 @@ class ThompsonSampling(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Sample the action values and write their argmax (only when exploring)."""
-        if not _exploring():
+        if not exploring():
             return tensordict
-        mean = tensordict.get("action_value")
-        sd = tensordict.get("action_log_sd").exp()
-        noise = torch.randn(mean.shape, generator=self.generator, device=self.generator.device, dtype=mean.dtype)
-        sample = mean + sd * noise.to(mean.device)
+        sample = self.sample(tensordict.get("action_value"), tensordict.get("action_log_sd"))
         tensordict.set("action_sample", sample)
         return tensordict.set("action", sample.argmax(-1))
+
+    def sample(self, mean: Tensor, log_sd: Tensor) -> Tensor:
+        """One draw ``q_a ~ N(mean_a, exp(log_sd_a)^2)`` of every action value (its argmax is the action)."""
+        noise = torch.randn(mean.shape, generator=self.generator, device=self.generator.device, dtype=mean.dtype)
+        return mean + log_sd.exp() * noise.to(mean.device)
 
 
 def check_exploration(algo: str, exploration: str) -> None:

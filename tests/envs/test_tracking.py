@@ -200,6 +200,21 @@ def test_a_worlds_stream_ignores_the_other_worlds():
         assert torch.equal(a[key][2], b[key][2])
 
 
+def test_replay_streams_reproduces_later_episodes_of_a_smaller_env():
+    small = TargetTrackingEnv(load_env_config("obstacles1"), batch_size=2, seed=3)
+    episodes = [small.reset() for _ in range(3)]  # episodes 1, 2 and 3 of worlds 0 and 1
+    big = TargetTrackingEnv(load_env_config("obstacles1"), batch_size=4, seed=99)
+    big.replay_streams(3, worlds=torch.tensor([1, 0, 1, 0]), episodes=torch.tensor([2, 0, 0, 1]))
+    replayed = big.reset()
+    for b, (world, episode) in enumerate([(1, 2), (0, 0), (1, 0), (0, 1)]):
+        for key in ("robot_pose", "target_state", "belief_mean"):
+            assert torch.equal(replayed[key][b], episodes[episode][key][world])
+    with pytest.raises(ValueError, match=r"episodes must be 4 non-negative integers.*\[0, -1, 0, 0\]"):
+        big.replay_streams(3, torch.zeros(4, dtype=torch.int64), torch.tensor([0, -1, 0, 0]))
+    with pytest.raises(ValueError, match="worlds must be 4"):
+        big.replay_streams(3, torch.zeros(3, dtype=torch.int64), torch.zeros(4, dtype=torch.int64))
+
+
 def test_same_seed_same_rollout_and_batch_size_independence():
     def rollout(seed, batch_size):
         env = make_env("small2", batch_size=batch_size, seed=seed)
