@@ -82,6 +82,7 @@ class MCAPRun:
         self._flush_interval_ns = int(flush_interval_s * 1e9)
         self._last_flush = self._last_time = time.time_ns()
         self.closed = False
+        self.flush()  # the header on disk at once: a just-started run's log is readable, never an empty file
 
     def channel(self, topic: str, schema: str) -> int:
         """The channel id of ``topic`` (registered with ``schema`` on first use)."""
@@ -178,6 +179,7 @@ class MCAPLogger(Logger):
         self.experiment.metadata("config", flatten(container))
         self.experiment.attachment("config.yaml", "application/yaml",
                                    yaml.safe_dump(container, sort_keys=False).encode())
+        self.experiment.flush()  # a running job's config is readable before its first evaluation
 
     def log_histogram(self, name: str, data: Sequence | Tensor | np.ndarray, step: int | None = None,
                       bins: int = 30, **kwargs) -> None:

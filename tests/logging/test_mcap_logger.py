@@ -12,7 +12,7 @@ import yaml
 from mcap.reader import make_reader
 from omegaconf import OmegaConf
 
-from aia.logging import MCAPLogger
+from aia.logging import MCAPLogger, read_run
 from aia.logging.mcap_logger import flatten
 
 
@@ -106,12 +106,19 @@ def test_flush_makes_everything_logged_so_far_readable_without_a_footer(tmp_path
     snapshot = (tmp_path / "run.mcap").read_bytes()  # what a SIGKILL now would leave on disk
     logger.log_scalar("eval/score", 100.0, step=100)
     logger.close()
-    from aia.logging import read_run
-
     (tmp_path / "killed.mcap").write_bytes(snapshot)
     run = read_run(tmp_path / "killed.mcap")
     assert not run.complete
     assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(100)]
+
+
+def test_a_just_started_log_is_readable_with_its_config(tmp_path):
+    logger = MCAPLogger("exp", tmp_path, run_metadata={"seed": 3}, flush_interval_s=3600)
+    assert read_run(tmp_path / "run.mcap").messages == []  # header on disk at once, not an empty file
+    logger.log_hparams(OmegaConf.create({"algo": {"name": "dqn"}}))
+    run = read_run(tmp_path / "run.mcap")  # the logger still open: no footer yet
+    assert not run.complete and run.config_value("algo.name") == "dqn"
+    logger.close()
 
 
 def test_time_based_flush_happens_while_logging(tmp_path):
