@@ -5,10 +5,11 @@
    (3 x 128, 8 inputs) and the 3-target network (3 x 256, 20 inputs), eager and compiled
    (``compile.update=true``); median over 5 windows, and the compiled variant's first call (compilation).
 2. Loop: ``aia.train.train`` in the paper's regime (one world, one update per frame, evaluation after
-   every episode) after the warm-up, frames per second of the whole job, eager and with every ``compile.*``
-   switch on; each job runs twice in one process (the first run includes compilation, its time is reported
-   too) and the second gives the frames per second and the split of its time over the loop's phases
-   (``aia.timing.PhaseTimer``: collect, buffer, update, evaluate, checkpoint, other).
+   every episode, ``eval.per_rollout`` of them played per batched rollout) after the warm-up, frames per
+   second of the whole job, eager and with every ``compile.*`` switch on; each job runs twice in one
+   process (the first run includes compilation, its time is reported too) and the second gives the frames
+   per second and the split of its time over the loop's phases (``aia.timing.PhaseTimer``: collect,
+   buffer, update, evaluate, checkpoint, other).
 
 Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<device>.json``).
 
