@@ -18,7 +18,8 @@
 #   ARVI_NODES   if set, a deterministic budget of this many nodes per world instead of ARVI_BUDGET
 #                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU)
 #   ARVI_MIN_RANGES  planner.min_range values, one ARVI baseline each [0 2]: 0 is ARVI as specified,
-#                2 keeps the plan off the belief mean (docs/planner.md, "Minimum planning range")
+#                2 keeps the plan off the belief mean (docs/planner.md, "Minimum planning range");
+#                ARVI_MIN_RANGES= (empty) runs no ARVI, e.g. to add learner seeds
 #
 # Each run's folder is named by what varies (e.g. $OUT/empty1/learners/method=adfq_ts,seed=3), so a later call
 # with more seeds or methods adds runs next to the ones already there instead of overwriting them.
@@ -33,7 +34,7 @@ FIGURES=${FIGURES:-$OUT/figures}
 ARVI_EPISODES=${ARVI_EPISODES:-5}
 ARVI_BUDGET=${ARVI_BUDGET:-1.0}
 METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
-ARVI_MIN_RANGES=${ARVI_MIN_RANGES:-"0 2"}
+ARVI_MIN_RANGES=${ARVI_MIN_RANGES-"0 2"}  # set but empty: no ARVI runs
 if [[ -n "${ARVI_NODES:-}" ]]; then
   ARVI_LIMIT=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
 else
