@@ -49,11 +49,12 @@ class Evaluator:
         first_index: index of the next evaluation (the count so far, when a run resumes).
         recorder: records world 0 of every ``record_every``-th evaluation (0: never), labelled with its
             training episode and frame; at most one per rollout, so ``per_rollout <= record_every``.
+        compile: compile the snapshots' batched network (:class:`~aia.modules.SnapshotPolicy`).
     """
 
     def __init__(self, env: EnvBase, network: nn.Module, num_actions: int, episodes: int, epsilon: float,
                  seed: int, noise_seed: int, first_index: int = 0, recorder: SceneRecorder | None = None,
-                 record_every: int = 0) -> None:
+                 record_every: int = 0, compile: bool = False) -> None:
         worlds = env.batch_size[0]
         if episodes < 1 or worlds % episodes:
             raise ValueError(f"the evaluation env's {worlds} worlds do not split into groups of episodes={episodes}")
@@ -69,7 +70,7 @@ class Evaluator:
         self.next_index = first_index
         self.recorder = recorder if record_every > 0 else None
         self.record_every = record_every
-        self.policy = SnapshotPolicy(network, num_actions, epsilon)
+        self.policy = SnapshotPolicy(network, num_actions, epsilon, compile=compile)
         self.pending: list[EvaluationPoint] = []
 
     @property

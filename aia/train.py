@@ -206,7 +206,7 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     evaluator = Evaluator(eval_env, actor[0].module, env.action_spec.n, cfg.eval.episodes, cfg.eval.epsilon,
                           seed=cfg.seed + 1_000_003, noise_seed=(cfg.seed + 1) * 1_000_003,
                           first_index=state.evaluations, recorder=recorder,
-                          record_every=cfg.logger.get("record_every_evaluations", 0))
+                          record_every=cfg.logger.get("record_every_evaluations", 0), compile=cfg.compile.policy)
 
     num_envs = cfg.collector.num_envs
     remaining = cfg.frames - state.frames

@@ -37,7 +37,7 @@ from aia.train import Updater, make_actor, make_loss, train
 
 SETTINGS = {"empty1": "3x128", "small3": "3x256"}
 EXPERIMENTS = {"empty1": "paper_empty1", "small3": "paper_small3"}
-LOOP_SWITCHES = ("update", "env")  # the compile.* switches of conf/train.yaml
+LOOP_SWITCHES = ("update", "env", "policy")  # the compile.* switches of conf/train.yaml
 
 
 def _config(*overrides: str):

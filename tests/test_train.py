@@ -155,7 +155,7 @@ def test_compiled_update_gives_the_eager_losses_and_parameters(algo, foreach):
 
 def test_training_runs_with_every_compile_switch_on(tmp_path):
     cfg = _config("algo=adfq", "exploration=thompson", "frames=300", "compile.update=true", "compile.env=true",
-                  *SMALL)
+                  "compile.policy=true", *SMALL)
     state = train(cfg, tmp_path)
     assert state.frames == 300 and state.updates == 201 and len(state.eval_scores) == 7
     assert all(math.isfinite(s) for s in state.eval_scores)

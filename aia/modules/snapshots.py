@@ -16,6 +16,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor, nn
 
+from aia.compiling import compiled
 from aia.modules.exploration import exploring
 
 
@@ -33,10 +34,11 @@ class SnapshotPolicy(TensorDictModuleBase):
     exploration type ``RANDOM`` or unset), replaces it by a uniform random action with probability
     ``epsilon``, drawing first ``E`` uniforms and then ``E`` random actions from generator ``k`` at every
     step, exactly as an :class:`~aia.modules.EpsilonGreedy` seeded alike would on those ``E`` worlds alone.
+    ``compile=True`` runs the batched network and argmax through ``torch.compile`` (a few seconds once).
     """
 
     def __init__(self, network: nn.Module, num_actions: int, epsilon: float, in_key: str = "observation",
-                 action_key: str = "action") -> None:
+                 action_key: str = "action", compile: bool = False) -> None:
         super().__init__()
         if not 0.0 <= epsilon <= 1.0:
             raise ValueError(f"epsilon={epsilon} must lie in [0, 1]")
@@ -47,6 +49,7 @@ class SnapshotPolicy(TensorDictModuleBase):
         self.epsilon = epsilon
         self._params: dict[str, Tensor] = {}
         self.generators: list[torch.Generator] = []
+        self._greedy = compiled(self._greedy_actions) if compile else self._greedy_actions
 
     def load(self, snapshots: Sequence[dict[str, Tensor]], seeds: Sequence[int]) -> None:
         """Act with ``snapshots`` (from :func:`parameter_snapshot`), group ``k`` drawing from ``seeds[k]``."""
@@ -61,6 +64,10 @@ class SnapshotPolicy(TensorDictModuleBase):
         out = torch.func.functional_call(self.network, params, (obs,))
         return out[0] if isinstance(out, tuple) else out  # the ADFQ network returns (mean, log_sd)
 
+    def _greedy_actions(self, params: dict[str, Tensor], grouped: Tensor) -> Tensor:
+        """``[G, E]`` argmax actions of snapshot ``k`` on group ``k`` (``grouped``: ``[G, E, ...]``)."""
+        return torch.func.vmap(self._values)(params, grouped).argmax(-1)
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Write each group's action (int64, shape = batch shape) under ``action_key``."""
         if not self.generators:
@@ -71,7 +78,7 @@ class SnapshotPolicy(TensorDictModuleBase):
             raise ValueError(f"a batch of {obs.shape[0]} worlds does not split into {groups} equal groups")
         grouped = obs.reshape(groups, obs.shape[0] // groups, *obs.shape[1:])
         with torch.no_grad():
-            action = torch.func.vmap(self._values)(self._params, grouped).argmax(-1)
+            action = self._greedy(self._params, grouped)
         if exploring():
             shape = action.shape[1:]
             explore, random = [], []

@@ -66,6 +66,19 @@ def test_greedy_without_exploration_and_on_adfq_means():
     assert not torch.equal(network(obs)[0].argmax(-1), other(obs)[0].argmax(-1))  # the snapshots matter
 
 
+def test_compiled_snapshot_policy_chooses_the_eager_actions():
+    torch.manual_seed(2)
+    network = make_q_network(8, 12, (16, 16))
+    snapshots = [parameter_snapshot(network), parameter_snapshot(_perturbed(network, 5))]
+    eager, compiled = SnapshotPolicy(network, 12, 0.3), SnapshotPolicy(network, 12, 0.3, compile=True)
+    eager.load(snapshots, seeds=[1, 2])
+    compiled.load(snapshots, seeds=[1, 2])
+    for step in range(5):
+        obs = torch.randn(8, 8, generator=torch.Generator().manual_seed(step))
+        assert torch.equal(compiled(TensorDict(observation=obs, batch_size=[8]))["action"],
+                           eager(TensorDict(observation=obs, batch_size=[8]))["action"])
+
+
 def test_snapshots_are_copies():
     network = make_q_network(4, 3, (8,))
     snapshot = parameter_snapshot(network)
