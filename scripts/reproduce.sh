@@ -10,6 +10,7 @@
 #   SETTINGS     settings to run [empty1 obstacles1 small2 small3]
 #   SEEDS        learner seeds [0,1,2,3,4];  ARVI_SEEDS  planner seeds [0,...,9]
 #   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
+#   TRAIN_OVERRIDES  more aia-train overrides, space-separated, e.g. "device=cuda" or "compile.update=false" []
 #   JOBS         learner runs in parallel [2];  OUT  output folder [outputs/repro]
 #   FIGURES      where the figures and tables go [$OUT/figures]
 #   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
@@ -43,6 +44,7 @@ fi
 RUN_NAME='hydra.sweep.subdir=${hydra.job.override_dirname}'
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
+read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
 
 declare -A WHERE=(
   [empty1]="--where env.map=empty"
@@ -59,8 +61,8 @@ for setting in $SETTINGS; do
   fi
   echo "== $setting: learners (seeds $SEEDS), $JOBS at a time"
   aia-train -m "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
-    "${FRAMES_OVERRIDE[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners" \
-    "$RUN_NAME" 'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames]'
+    "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners" \
+    "$RUN_NAME" 'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
   baselines=()
   for min_range in $ARVI_MIN_RANGES; do
     name=arvi; label=ARVI
@@ -79,7 +81,8 @@ for setting in $SETTINGS; do
   config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
   if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; continue; fi
   run=$(dirname "$(dirname "$config")")
-  aia-eval "checkpoint=$run/checkpoints/last.pt" episodes=5 seed=0 threads=1 \
+  # quoted: the run's folder name holds '=' and ',' (method=adfq_ts,seed=0), which Hydra's grammar reserves
+  aia-eval "checkpoint='$run/checkpoints/last.pt'" episodes=5 seed=0 threads=1 \
     "hydra.run.dir=$OUT/$setting/trajectory"
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
     --out "$FIGURES/${setting}_trajectory.png"

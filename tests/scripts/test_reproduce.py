@@ -1,0 +1,51 @@
+"""scripts/reproduce.sh end to end on a tiny budget: learner and ARVI runs, curves, table, trajectory picture."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce.sh"
+
+
+def run_script(cwd: Path, **env: str) -> subprocess.CompletedProcess:
+    """``bash scripts/reproduce.sh`` in ``cwd`` with this interpreter's console scripts first on PATH."""
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
+    return subprocess.run(["bash", str(SCRIPT)], cwd=cwd, env={**os.environ, "PATH": path, **env},
+                          capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.skipif(not SCRIPT.exists(), reason="scripts/ is not installed with the package")
+def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajectory(tmp_path):
+    result = run_script(
+        tmp_path, SETTINGS="empty1", SEEDS="0", METHODS="adfq_ts", FRAMES="300", ARVI_SEEDS="0", ARVI_EPISODES="1",
+        ARVI_NODES="100", JOBS="1", OUT="out",
+        TRAIN_OVERRIDES="compile.update=false compile.env=false compile.policy=false",
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    setting = tmp_path / "out" / "empty1"
+    # Run folders are named by what varies (the compile switches are not part of a run's name).
+    assert (setting / "learners" / "method=adfq_ts,seed=0" / "run.mcap").is_file()
+    for baseline in ("arvi", "arvi_min2"):
+        assert (setting / baseline / "seed=0" / "run.mcap").is_file()
+    figures = tmp_path / "out" / "figures"
+    table = (figures / "empty1.md").read_text()
+    assert "| algo=adfq, exploration=thompson | 1 |" in table
+    assert "training episodes to reach ARVI, min range 2 m" in table
+    # The trajectory step reads the checkpoint of a run whose folder name holds '=' and ','.
+    assert (setting / "trajectory" / "run.mcap").is_file()
+    with Image.open(figures / "empty1_trajectory.png") as strip:
+        assert strip.size == (5 * 320, 320)  # 5 frames of 320 pixels
+    with Image.open(figures / "empty1.png") as curves:
+        assert min(curves.size) > 200
+
+
+def test_an_unknown_setting_is_named(tmp_path):
+    result = run_script(tmp_path, SETTINGS="empty9", OUT="out")
+    assert result.returncode == 2
+    assert "unknown setting 'empty9'" in result.stderr and "empty1 obstacles1 small2 small3" in result.stderr
