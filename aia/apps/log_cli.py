@@ -23,7 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
-from aia.logging.curves import TAIL_FRACTION, X_AXES, baseline_level, first_reaching, learning_curves, select_runs
+from aia.logging.curves import (
+    TAIL_FRACTION,
+    X_AXES,
+    baseline_level,
+    first_reaching,
+    learning_curves,
+    lower_is_better,
+    select_runs,
+)
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
 
 RENDER_FORMATS = (".gif", ".png")
@@ -133,22 +141,24 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     return curves
 
 
-def results_table(curves: Sequence, metric: str, x_axis: str, baselines: Sequence[Baseline] = ()) -> str:
+def results_table(curves: Sequence, metric: str, x_axis: str, baselines: Sequence[Baseline] = (),
+                  lower_better: bool = False) -> str:
     """A markdown table: per group, its runs, the final mean and std of the (smoothed) ``metric``, the mean
     and std over runs of each run's last 10 % of values and, per baseline, where the mean first reaches the
-    baseline's mean."""
+    baseline's mean (rises to it, or falls to it when ``lower_better``)."""
     header = (f"| group | runs | final {metric} (mean +- std over runs) "
               f"| last {TAIL_FRACTION:.0%} of evaluations (mean +- std over runs) |")
     rule = "|---|---:|---:|---:|"
+    verb = "fall to" if lower_better else "reach"
     for label, mean, std, _ in baselines:
-        header += f" {X_LABELS[x_axis]} to reach {label} ({mean:.1f} +- {std:.1f}) |"
+        header += f" {X_LABELS[x_axis]} to {verb} {label} ({mean:.1f} +- {std:.1f}) |"
         rule += "---:|"
     rows = [header, rule]
     for curve in curves:
         row = (f"| {curve.label} | {int(curve.runs.max())} | {curve.mean[-1]:.1f} +- {curve.std[-1]:.1f} "
                f"| {curve.tails.mean():.1f} +- {curve.tails.std():.1f} |")
         for _, mean, _, _ in baselines:
-            reached = first_reaching(curve, mean)
+            reached = first_reaching(curve, mean, lower_better)
             row += f" {'never' if reached is None else f'{reached:.0f}'} |"
         rows.append(row)
     return "\n".join(rows)
@@ -297,6 +307,10 @@ def make_parser() -> argparse.ArgumentParser:
                      help="runs whose metric values make a horizontal baseline band, e.g. aia-eval policy=arvi logs")
     cmd.add_argument("--baseline-label", action="append", default=[], metavar="LABEL",
                      help="legend label of the baseline (e.g. ARVI); one per --baseline draws several baselines")
+    cmd.add_argument("--better", choices=("higher", "lower"),
+                     help="which way the metric improves, for the table's episodes-to-reach-a-baseline columns "
+                          "(default: lower for a metric named *error* or *loss*, such as eval/belief_error, "
+                          "higher otherwise)")
     cmd.add_argument("--title", help="figure title (default: the metric)")
     cmd.add_argument("--out", type=Path, default=Path("curves.png"), help="PNG to write (default: curves.png)")
 
@@ -343,7 +357,8 @@ def run_command(args: argparse.Namespace) -> None:
         for curve in curves:
             print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "
                   f"+- {curve.std[-1]:.1f}")
-        print(results_table(curves, args.metric, args.x_axis, baselines))
+        lower_better = lower_is_better(args.metric) if args.better is None else args.better == "lower"
+        print(results_table(curves, args.metric, args.x_axis, baselines, lower_better))
         print(f"plot written to {args.out}")
     elif args.command == "render":
         width, height = render(read_run(args.run), args.episode, args.out, args.size, args.frames, args.fps,

@@ -119,7 +119,15 @@ def baseline_level(runs: Sequence[RunLog], metric: str) -> tuple[float, float, i
     return float(values.mean()), float(values.std()), int(values.size)
 
 
-def first_reaching(curve: Curve, level: float) -> float | None:
-    """The first x at which the curve's mean reaches ``level`` (None if it never does)."""
-    reached = np.flatnonzero(curve.mean >= level)
+def lower_is_better(metric: str) -> bool:
+    """Whether ``metric`` improves downwards: its last name part mentions an error or a loss
+    (``eval/belief_error``, ``train/loss``); scores, returns and rates improve upwards."""
+    name = metric.rsplit("/", 1)[-1]
+    return any(word in name for word in ("error", "loss"))
+
+
+def first_reaching(curve: Curve, level: float, lower_is_better: bool = False) -> float | None:
+    """The first x at which the curve's mean reaches ``level``: rises to it or, when ``lower_is_better``, falls
+    to it (None if it never does)."""
+    reached = np.flatnonzero(curve.mean <= level if lower_is_better else curve.mean >= level)
     return float(curve.x[reached[0]]) if reached.size else None

@@ -133,6 +133,12 @@ def test_plot_with_two_baselines(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "to reach ARVI (4.5 +- 0.5) | training episodes to reach ARVI 2 m (9.0 +- 0.0) |" in printed
     assert "| all | 2 | 7.0 +- 1.0 | 7.0 +- 1.0 | 6 | never |" in printed
+    # read as a lower-is-better metric, the means (2, 4, 7 at episodes 2, 4, 6) are at or below both
+    # baselines' means (4.5 and 9.0) from the first evaluation on
+    assert main([*arguments, "--better", "lower"]) == 0
+    printed = capsys.readouterr().out
+    assert "training episodes to fall to ARVI 2 m (9.0 +- 0.0) |" in printed
+    assert "| all | 2 | 7.0 +- 1.0 | 7.0 +- 1.0 | 2 | 2 |" in printed
     assert main([*arguments, "--baseline-label", "third"]) == 2
     assert "3 --baseline-label for 2 --baseline" in capsys.readouterr().err
 

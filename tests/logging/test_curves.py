@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aia.logging.curves import aggregate, moving_average, tail_mean
+from aia.logging.curves import aggregate, first_reaching, lower_is_better, moving_average, tail_mean
 
 
 def test_moving_average_is_trailing_with_a_short_start():
@@ -35,3 +35,18 @@ def test_tail_mean_is_over_the_last_tenth():
     assert tail_mean(np.arange(200.0)) == pytest.approx(np.mean(np.arange(180.0, 200.0)))
     assert tail_mean(np.array([4.0])) == 4.0
     assert np.isnan(tail_mean(np.array([])))
+
+
+def test_first_reaching_rises_or_falls_to_the_level():
+    curve = aggregate("adfq", [(np.array([10.0, 20.0, 30.0, 40.0]), np.array([9.0, 4.0, 6.0, 2.0]))])
+    assert first_reaching(curve, 5.0) == 10.0            # higher is better: 9 >= 5 at once
+    assert first_reaching(curve, 7.0, lower_is_better=True) == 20.0   # 4 <= 7 first at x = 20
+    assert first_reaching(curve, 3.0, lower_is_better=True) == 40.0
+    assert first_reaching(curve, 1.0, lower_is_better=True) is None
+    assert first_reaching(curve, 10.0) is None
+
+
+def test_errors_and_losses_improve_downwards():
+    assert lower_is_better("eval/belief_error") and lower_is_better("train/loss") and lower_is_better("td_error")
+    assert not lower_is_better("eval/score") and not lower_is_better("train/frames_per_s")
+    assert not lower_is_better("error_rate/score")  # only the last part of the name counts
