@@ -5,11 +5,12 @@
    (3 x 128, 8 inputs) and the 3-target network (3 x 256, 20 inputs), eager and compiled
    (``compile.update=true``); median over 5 windows, and the compiled variant's first call (compilation).
 2. Loop: ``aia.train.train`` in the paper's regime (one world, one update per frame, evaluation after
-   every episode, ``eval.per_rollout`` of them played per batched rollout) after the warm-up, frames per
-   second of the whole job, eager and with every ``compile.*`` switch on; each job runs twice in one
-   process (the first run includes compilation, its time is reported too) and the second gives the frames
-   per second and the split of its time over the loop's phases (``aia.timing.PhaseTimer``: collect,
-   buffer, update, evaluate, checkpoint, other).
+   every episode, ``eval.per_rollout`` of them played per batched rollout), eager and with every
+   ``compile.*`` switch on. A first job pays for compilation (its time is reported); then frames per second
+   of a whole ``--loop-frames`` job (its 500 warm-up frames without updates included) with the split of its
+   time over the loop's phases (``aia.timing.PhaseTimer``: collect, buffer, update, evaluate, checkpoint,
+   other), and of its updating frames alone ("updating": the frames after the warm-up over the job's time
+   minus that of a warm-up-only job), the rate of the bulk of a long run.
 
 Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<device>.json``).
 
@@ -83,25 +84,31 @@ def measure_updates(setting: str, algo: str, device: str, compile: bool, updates
 
 
 def measure_loop(algo: str, device: str, frames: int, compile: bool) -> dict:
-    """Frames per second of a whole paper-regime training job on empty1 (after a 500-frame warm-up).
+    """Frames per second of a paper-regime training job on empty1: of the whole job, and of its updating part.
 
-    The job runs twice in this process: the first run pays for compilation (``compile=True``: every switch
-    under ``compile`` of ``conf/train.yaml``), the second shows the steady state.
+    Three jobs run in this process: one of ``frames`` that pays for compilation (``compile=True``: every switch
+    under ``compile`` of ``conf/train.yaml``), one of ``frames`` at the steady state, and one of only the
+    warm-up (random actions, no updates; it runs about twice as fast). ``frames_per_s`` is the whole job's
+    rate, warm-up included; ``updating_frames_per_s`` its frames after the warm-up over its time minus the
+    warm-up job's: one update per frame, evaluations included, the rate of the bulk of a long run.
     """
     exploration = "thompson" if algo == "adfq" else "egreedy"
     switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
-    cfg = _config(f"algo={algo}", f"exploration={exploration}", f"frames={frames}", "logger=none",
-                  f"device={device}", *switches)
-    seconds = []
-    for _ in range(2):
+    seconds, states = [], []
+    warmup = _config().warmup_frames
+    for length in (frames, frames, warmup):
+        cfg = _config(f"algo={algo}", f"exploration={exploration}", f"frames={length}", "logger=none",
+                      f"device={device}", *switches)
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
-            state = train(cfg, Path(out))
+            states.append(train(cfg, Path(out)))
             seconds.append(time.perf_counter() - start)
+    job = states[1]
     return {"kind": "loop", "setting": "empty1", "algo": algo, "device": device, "compiled": compile,
-            "frames": state.frames, "updates": state.updates, "evaluations": state.evaluations,
-            "first_run_s": seconds[0], "seconds": seconds[1], "frames_per_s": state.frames / seconds[1],
-            "ms_per_frame_by_phase": {phase: 1e3 * t / state.frames for phase, t in state.seconds.items()}}
+            "frames": job.frames, "updates": job.updates, "evaluations": job.evaluations,
+            "first_run_s": seconds[0], "seconds": seconds[1], "frames_per_s": job.frames / seconds[1],
+            "warmup_s": seconds[2], "updating_frames_per_s": (job.frames - warmup) / (seconds[1] - seconds[2]),
+            "ms_per_frame_by_phase": {phase: 1e3 * t / job.frames for phase, t in job.seconds.items()}}
 
 
 def main() -> None:
@@ -127,8 +134,8 @@ def main() -> None:
                 print(f"{row['network']:<8}{algo:<6}{mode:<10}{row['ms_per_update']:>11.2f}"
                       f"{row['updates_per_s']:>11,.0f}{row['first_call_s']:>14.1f}", flush=True)
     if "loop" in parts:
-        print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'frames/s':>10}{'first run s':>13}"
-              "  ms per frame by phase")
+        print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'frames/s':>10}{'updating':>10}"
+              f"{'first run s':>13}  ms per frame by phase")
     for algo in ("dqn", "ddqn", "adfq") if "loop" in parts else ():
         for compile in (False, True):
             row = measure_loop(algo, args.device, args.loop_frames, compile)
@@ -136,8 +143,8 @@ def main() -> None:
             mode = "compiled" if compile else "eager"
             phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
                                sorted(row["ms_per_frame_by_phase"].items(), key=lambda item: -item[1]))
-            print(f"{algo:<40}{mode:<10}{row['frames_per_s']:>10,.0f}{row['first_run_s']:>13.1f}  {phases}",
-                  flush=True)
+            print(f"{algo:<40}{mode:<10}{row['frames_per_s']:>10,.0f}{row['updating_frames_per_s']:>10,.0f}"
+                  f"{row['first_run_s']:>13.1f}  {phases}", flush=True)
 
     out = args.out or Path(__file__).parent / "results" / f"train_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
