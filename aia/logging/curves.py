@@ -126,8 +126,8 @@ def lower_is_better(metric: str) -> bool:
     return any(word in name for word in ("error", "loss"))
 
 
-def first_reaching(curve: Curve, level: float, lower_is_better: bool = False) -> float | None:
-    """The first x at which the curve's mean reaches ``level``: rises to it or, when ``lower_is_better``, falls
+def first_reaching(curve: Curve, level: float, lower_better: bool = False) -> float | None:
+    """The first x at which the curve's mean reaches ``level``: rises to it or, when ``lower_better``, falls
     to it (None if it never does)."""
-    reached = np.flatnonzero(curve.mean <= level if lower_is_better else curve.mean >= level)
+    reached = np.flatnonzero(curve.mean <= level if lower_better else curve.mean >= level)
     return float(curve.x[reached[0]]) if reached.size else None

@@ -40,9 +40,9 @@ def test_tail_mean_is_over_the_last_tenth():
 def test_first_reaching_rises_or_falls_to_the_level():
     curve = aggregate("adfq", [(np.array([10.0, 20.0, 30.0, 40.0]), np.array([9.0, 4.0, 6.0, 2.0]))])
     assert first_reaching(curve, 5.0) == 10.0            # higher is better: 9 >= 5 at once
-    assert first_reaching(curve, 7.0, lower_is_better=True) == 20.0   # 4 <= 7 first at x = 20
-    assert first_reaching(curve, 3.0, lower_is_better=True) == 40.0
-    assert first_reaching(curve, 1.0, lower_is_better=True) is None
+    assert first_reaching(curve, 7.0, lower_better=True) == 20.0   # 4 <= 7 first at x = 20
+    assert first_reaching(curve, 3.0, lower_better=True) == 40.0
+    assert first_reaching(curve, 1.0, lower_better=True) is None
     assert first_reaching(curve, 10.0) is None
 
 
