@@ -94,11 +94,11 @@ def measure_loop(algo: str, device: str, frames: int, compile: bool) -> dict:
     """
     exploration = "thompson" if algo == "adfq" else "egreedy"
     switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
+    overrides = [f"algo={algo}", f"exploration={exploration}", "logger=none", f"device={device}", *switches]
+    warmup = _config(*overrides).warmup_frames
     seconds, states = [], []
-    warmup = _config().warmup_frames
     for length in (frames, frames, warmup):
-        cfg = _config(f"algo={algo}", f"exploration={exploration}", f"frames={length}", "logger=none",
-                      f"device={device}", *switches)
+        cfg = _config(*overrides, f"frames={length}")
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
             states.append(train(cfg, Path(out)))

@@ -7,7 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 from PIL import Image
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce.sh"
@@ -20,7 +19,6 @@ def run_script(cwd: Path, **env: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=600)
 
 
-@pytest.mark.skipif(not SCRIPT.exists(), reason="scripts/ is not installed with the package")
 def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajectory(tmp_path):
     result = run_script(
         tmp_path, SETTINGS="empty1", SEEDS="0", METHODS="adfq_ts", FRAMES="300", ARVI_SEEDS="0", ARVI_EPISODES="1",
