@@ -21,9 +21,9 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torch import Tensor
-from torch.optim.adam import adam
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.envs import SelectTransform
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
 from torchrl.record.loggers import Logger
 from torchrl.record.loggers.csv import CSVLogger
@@ -58,6 +58,10 @@ class TrainingState:
     evaluations: int = 0
     eval_scores: list[float] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)  # wall clock per phase of the loop (PhaseTimer)
+
+
+# What the loop reads of each collected frame besides the loss's keys: the score's terms (SPEC 9) and the ends.
+_SCORE_KEYS = (("next", "logdet_cov"), ("next", "done"))
 
 
 def make_actor(cfg: DictConfig, env) -> TensorDictSequential:
@@ -177,6 +181,8 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     env_config = to_tracking_config(cfg.env)
     env = make_env(env_config, batch_size=cfg.collector.num_envs, device=cfg.device, seed=cfg.seed,
                    compile=cfg.compile.env)
+    # The collector copies every key of every frame: keep what the policy, the loss and the score read.
+    env.append_transform(SelectTransform("observation", "logdet_cov", keep_rewards=True, keep_dones=True))
     eval_env = make_env(env_config, batch_size=cfg.eval.episodes * cfg.eval.per_rollout, device=cfg.device,
                         compile=cfg.compile.env)
     actor = make_actor(cfg, env)
@@ -185,7 +191,8 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     loss = make_loss(cfg, actor)
     target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
-    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=cfg.compile.update)
+    # cfg.compile.update would be DictConfig's dict method update (always true), not the switch
+    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=cfg.compile["update"])
     buffer = ReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size, device=cfg.device), batch_size=cfg.batch_size)
     state = TrainingState()
     recorder = make_recorder(cfg, logger, eval_env)
@@ -221,6 +228,10 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
     )
     running_score = torch.zeros(num_envs, device=cfg.device)
     updates_owed = 0.0
+    # read once: an attribute of an OmegaConf config costs about 7 us, several times a frame's budget share
+    warmup_frames, updates_per_frame = cfg.warmup_frames, cfg.updates_per_frame
+    checkpoint_every, eval_every = cfg.checkpoint_every_frames, cfg.eval.every_episodes
+    first_update = True
     timer = PhaseTimer(state.seconds)  # updates state.seconds in place
     measured_before = sum(state.seconds.values())
     start = time.perf_counter()
@@ -233,40 +244,44 @@ def _train(cfg: DictConfig, out_dir: Path, logger: Logger | None) -> TrainingSta
                 batch = next(batches, None)
             if batch is None:
                 break
-            batch = batch.reshape(-1)
+            # only what the loop reads: the loss's keys (a cheaper extend and sample), the score and the ends
+            batch = batch.select(*loss.in_keys, *_SCORE_KEYS).reshape(-1)
             with timer("buffer"):
-                buffer.extend(batch.select(*loss.in_keys))  # only what the loss reads: cheaper extend and sample
+                buffer.extend(batch.select(*loss.in_keys))
             state.frames += batch.numel()
             if isinstance(exploration, EpsilonGreedy):
                 exploration.step(batch.numel())
-            running_score += -batch["next", "logdet_cov"].mean(-1).reshape(-1, num_envs).sum(0)
-            done = batch["next", "done"].reshape(-1, num_envs).any(0)
-            for score in running_score[done].tolist():
-                state.episodes += 1
-                if logger:
-                    logger.log_scalar("train/score", score, step=state.frames)
-                if state.episodes % cfg.eval.every_episodes == 0:
-                    evaluator.add(state.episodes, state.frames)
+            running_score += -batch[_SCORE_KEYS[0]].mean(-1).reshape(-1, num_envs).sum(0)
+            done = batch[_SCORE_KEYS[1]].reshape(-1, num_envs).any(0)
+            if done.any():
+                for score in running_score[done].tolist():
+                    state.episodes += 1
+                    if logger:
+                        logger.log_scalar("train/score", score, step=state.frames)
+                    if state.episodes % eval_every == 0:
+                        evaluator.add(state.episodes, state.frames)
+                running_score[done] = 0.0
             if evaluator.full:
                 with timer("evaluate"):
                     evaluate(evaluator, state, logger)
                 bar.set_postfix(score=f"{state.eval_scores[-1]:.0f}", **_exploration_status(exploration))
-            running_score[done] = 0.0
 
-            if state.frames >= cfg.warmup_frames:
-                updates_owed += cfg.updates_per_frame * batch.numel()
+            if state.frames >= warmup_frames:
+                updates_owed += updates_per_frame * batch.numel()
                 while updates_owed >= 1:
                     updates_owed -= 1
                     with timer("buffer"):
                         sample = buffer.sample()
-                    with timer("update"):
+                    # the first step of a job compiles (compile.update=true): timed apart from the steady steps
+                    with timer("first_update" if first_update else "update"):
                         losses = update(sample)
+                    first_update = False
                     state.updates += 1
                     if logger and state.updates % 100 == 0:
                         logger.log_scalar("train/loss", losses["loss"].item(), step=state.frames)
                         if isinstance(exploration, EpsilonGreedy):
                             logger.log_scalar("train/epsilon", exploration.epsilon, step=state.frames)
-            if state.frames % cfg.checkpoint_every_frames < batch.numel():
+            if state.frames % checkpoint_every < batch.numel():
                 with timer("evaluate"):
                     evaluate(evaluator, state, logger)  # a checkpoint keeps no pending evaluation
                 with timer("checkpoint"):
@@ -294,58 +309,85 @@ class Updater:
     """One optimiser step per call: loss, gradients, gradient-norm clipping, Adam step, target bookkeeping.
 
     The step is one function of tensors (:func:`adam_step`): ``torch.autograd.grad`` of the loss, the norm
-    clipping of ``torch.nn.utils.clip_grad_norm_`` and ``torch.optim``'s functional Adam on the optimiser's
-    own state (so checkpoints keep the ``optimizer.state_dict()`` format). ``compile=True`` runs that whole
-    function as one ``torch.compile`` graph (forward, backward, clipping and Adam fused; the first call
-    compiles); eager and compiled give the same losses and parameters up to float rounding. The hard
-    target-network copy (``target_updater.step()``) stays outside the graph.
+    clipping of ``torch.nn.utils.clip_grad_norm_`` and Adam's arithmetic (:func:`adam_update`, that of
+    ``torch.optim.Adam``'s default single-tensor step, bit for bit) on the optimiser's own state, so that
+    checkpoints keep the ``optimizer.state_dict()`` format and a learning rate changed in its parameter group
+    takes effect. The step counts and the bias corrections are computed here, outside the step function, and
+    enter it as tensors: compiled, a changing Python number would recompile and a correction computed from
+    the step inside the graph would be recomputed for every element. ``compile=True`` runs the step function
+    as one ``torch.compile`` graph (forward, backward, clipping and Adam fused; the first call compiles;
+    :func:`aia.compiling.compiled_update`: the loss module's settings must not change after that call); eager
+    and compiled give the same losses and parameters up to float rounding. The hard target-network copy
+    (``target_updater.step()``) stays outside the graph.
     """
 
     def __init__(self, loss: LossModule, optimizer: torch.optim.Adam, target_updater: HardUpdate, grad_clip: float,
                  compile: bool = False) -> None:
         if not isinstance(optimizer, torch.optim.Adam) or len(optimizer.param_groups) != 1:
             raise TypeError("Updater drives a torch.optim.Adam with one parameter group")
+        group = optimizer.param_groups[0]
+        unsupported = {name: group[name] for name, plain in _PLAIN_ADAM.items() if group[name] != plain}
+        if unsupported:
+            raise ValueError(f"Updater drives a plain Adam ({_PLAIN_ADAM}); got {unsupported}")
         self.loss = loss
         self.optimizer = optimizer
         self.target_updater = target_updater
         self.grad_clip = float(grad_clip)
         self._step = compiled_update(adam_step) if compile else adam_step
-        # Inside one graph the per-tensor Adam is fused anyway, and torch 2.13 cannot trace the foreach one.
-        self._adam_overrides = {"foreach": False} if compile else {}
+        params = group["params"]
+        # This step's learning rate over the first moment's bias correction, and the second one's square root.
+        self._corrections = torch.zeros(2, dtype=params[0].dtype, device=params[0].device)
 
     def __call__(self, batch: TensorDictBase) -> TensorDictBase:
         """Update on ``batch``; returns the loss module's output, detached."""
         group = self.optimizer.param_groups[0]
         params = group["params"]
         states = [_adam_state(self.optimizer, p) for p in params]
+        torch._foreach_add_([s["step"] for s in states], 1.0)
+        step = states[0]["step"].item()
+        beta1, beta2 = group["betas"]
+        self._corrections.copy_(torch.tensor([group["lr"] / (1 - beta1**step), (1 - beta2**step) ** 0.5]))
         losses = self._step(
             self.loss, batch, params, [s["exp_avg"] for s in states], [s["exp_avg_sq"] for s in states],
-            [s["max_exp_avg_sq"] for s in states if "max_exp_avg_sq" in s], [s["step"] for s in states],
-            self.grad_clip, {**_adam_options(group), **self._adam_overrides},
+            self._corrections, self.grad_clip, beta1, beta2, group["eps"],
         )
         self.target_updater.step()
         return losses
 
 
 def adam_step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
-              exp_avg_sqs: list[Tensor], max_exp_avg_sqs: list[Tensor], steps: list[Tensor], grad_clip: float,
-              options: dict) -> TensorDictBase:
-    """``loss(batch)``, its gradients, ``clip_grad_norm_``'s clipping and ``torch.optim.adam.adam`` in place."""
+              exp_avg_sqs: list[Tensor], corrections: Tensor, grad_clip: float, beta1: float, beta2: float,
+              eps: float) -> TensorDictBase:
+    """``loss(batch)``, its gradients, ``clip_grad_norm_``'s clipping and :func:`adam_update` in place."""
     losses = loss(batch)
     grads = torch.autograd.grad(losses["loss"], params)
-    total_norm = torch.nn.utils.get_total_norm(grads, 2.0)
-    scale = torch.clamp(grad_clip / (total_norm + 1e-6), max=1.0)  # as clip_grad_norm_
+    # clip_grad_norm_'s norm and scale; torch.nn.utils.get_total_norm's _foreach_norm would not be compiled
+    total_norm = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in grads]))
+    scale = torch.clamp(grad_clip / (total_norm + 1e-6), max=1.0)
     with torch.no_grad():
-        adam(params, [g * scale for g in grads], exp_avgs, exp_avg_sqs, max_exp_avg_sqs, steps, **options)
+        adam_update(params, [g * scale for g in grads], exp_avgs, exp_avg_sqs, corrections, beta1, beta2, eps)
     return losses.detach()
 
 
-def _adam_options(group: dict) -> dict:
-    """The keyword arguments of ``torch.optim.adam.adam`` for an Adam parameter group."""
-    keys = ("foreach", "capturable", "differentiable", "fused", "decoupled_weight_decay", "amsgrad", "lr",
-            "weight_decay", "eps", "maximize")
-    beta1, beta2 = group["betas"]
-    return {"beta1": beta1, "beta2": beta2, **{key: group[key] for key in keys}}
+def adam_update(params: list[Tensor], grads: list[Tensor], exp_avgs: list[Tensor], exp_avg_sqs: list[Tensor],
+                corrections: Tensor, beta1: float, beta2: float, eps: float) -> None:
+    """Adam's update of ``params`` and its moments in place, as ``torch.optim.Adam``'s single-tensor step.
+
+    ``corrections`` holds ``lr / (1 - beta1**step)`` and ``sqrt(1 - beta2**step)`` (in the params' dtype),
+    the operations and their order are those of ``torch.optim.adam._single_tensor_adam`` (no weight decay,
+    amsgrad or maximize), so the eager result is the same to the bit.
+    """
+    step_size, bias_correction2_sqrt = corrections[0], corrections[1]
+    for param, grad, exp_avg, exp_avg_sq in zip(params, grads, exp_avgs, exp_avg_sqs, strict=True):
+        exp_avg.lerp_(grad, 1 - beta1)
+        exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(eps)
+        param.sub_(step_size * exp_avg / denom)
+
+
+# The Adam options that Updater leaves at torch.optim.Adam's defaults.
+_PLAIN_ADAM = {"weight_decay": 0, "amsgrad": False, "maximize": False, "differentiable": False,
+               "decoupled_weight_decay": False}
 
 
 def _adam_state(optimizer: torch.optim.Adam, param: Tensor) -> dict[str, Tensor]:
@@ -356,9 +398,8 @@ def _adam_state(optimizer: torch.optim.Adam, param: Tensor) -> dict[str, Tensor]
         on_device = group["capturable"] or group["fused"]
         state["step"] = torch.zeros((), dtype=torch.float32 if group["fused"] else torch.get_default_dtype(),
                                     device=param.device if on_device else "cpu")
-        moments = ("exp_avg", "exp_avg_sq", "max_exp_avg_sq") if group["amsgrad"] else ("exp_avg", "exp_avg_sq")
-        for name in moments:
-            state[name] = torch.zeros_like(param, memory_format=torch.preserve_format)
+        state["exp_avg"] = torch.zeros_like(param, memory_format=torch.preserve_format)
+        state["exp_avg_sq"] = torch.zeros_like(param, memory_format=torch.preserve_format)
     return state
 
 

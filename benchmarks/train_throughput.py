@@ -1,16 +1,19 @@
 """Optimiser updates per second of each loss, and frames per second of the whole training loop.
 
 1. Updates: one Adam step (loss, backward, gradient clipping, target-update bookkeeping; ``aia.train.Updater``,
-   the training loop's) on a batch of 64 transitions, for DQN, Double DQN and ADFQ, on the 1-target network
-   (3 x 128, 8 inputs) and the 3-target network (3 x 256, 20 inputs), eager and compiled
-   (``compile.update=true``); median over 5 windows, and the compiled variant's first call (compilation).
+   the training loop's) on a batch of 64 transitions with the replay buffer's keys (each update gets a fresh
+   copy, made outside the timing), for DQN, Double DQN and ADFQ, on the 1-target network (3 x 128, 8 inputs)
+   and the 3-target network (3 x 256, 20 inputs), eager and compiled (``compile.update=true``); median over
+   5 windows, and the compiled variant's first call (compilation).
 2. Loop: ``aia.train.train`` in the paper's regime (one world, one update per frame, evaluation after
    every episode, ``eval.per_rollout`` of them played per batched rollout), eager and with every
-   ``compile.*`` switch on. A first job pays for compilation (its time is reported); then frames per second
-   of a whole ``--loop-frames`` job (its 500 warm-up frames without updates included) with the split of its
-   time over the loop's phases (``aia.timing.PhaseTimer``: collect, buffer, update, evaluate, checkpoint,
-   other), and of its updating frames alone ("updating": the frames after the warm-up over the job's time
-   minus that of a warm-up-only job), the rate of the bulk of a long run.
+   ``compile.*`` switch on: frames per second of the updating frames (the bulk of a long run; median of
+   ``--repeats`` jobs of ``--loop-frames`` frames, ``measure_loop``), with the split of a frame's time over
+   the loop's phases (``aia.timing.PhaseTimer``: collect, buffer, update, evaluate, other); also the wall
+   time of a whole job and of the first (compiling) job.
+
+The virtual machines we measure on vary by up to 2x over minutes: the JSON's ``meta`` holds a calibration
+(a matmul's and a tiny op's microseconds) taken before and after, and the loop's rates of every job.
 
 Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<device>.json``).
 
@@ -54,26 +57,25 @@ def measure_updates(setting: str, algo: str, device: str, compile: bool, updates
                   f"device={device}")
     env = make_env(setting, batch_size=64, device=device, seed=0)
     actor = make_actor(cfg, env)
-    batch = env.rollout(2, policy=actor)[:, -1]  # 64 transitions with the training keys
     loss = make_loss(cfg, actor)
+    # 64 transitions with the keys that the loop's replay buffer keeps (the loss's in_keys)
+    batch = env.rollout(2, policy=actor)[:, -1].select(*loss.in_keys)
     updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
     update = Updater(loss, torch.optim.Adam(loss.parameters(), lr=cfg.lr), updater, cfg.grad_clip, compile=compile)
 
-    def step():
-        update(batch.clone())
-
     start = time.perf_counter()
-    step()
+    update(batch.clone())  # each update gets a fresh batch, as a sample of the replay buffer
     first = time.perf_counter() - start
     for _ in range(20):
-        step()
+        update(batch.clone())
     windows = []
     for _ in range(repeats):
+        batches = [batch.clone() for _ in range(updates)]  # made outside the timed window
         if device.startswith("cuda"):
             torch.cuda.synchronize()
         start = time.perf_counter()
-        for _ in range(updates):
-            step()
+        for fresh in batches:
+            update(fresh)
         if device.startswith("cuda"):
             torch.cuda.synchronize()
         windows.append((time.perf_counter() - start) / updates)
@@ -83,38 +85,73 @@ def measure_updates(setting: str, algo: str, device: str, compile: bool, updates
             "first_call_s": first}
 
 
-def measure_loop(algo: str, device: str, frames: int, compile: bool) -> dict:
-    """Frames per second of a paper-regime training job on empty1: of the whole job, and of its updating part.
+def measure_loop(algo: str, device: str, frames: int, compile: bool, repeats: int) -> dict:
+    """Frames per second of a paper-regime training job on empty1 after its warm-up (its updating frames).
 
-    Three jobs run in this process: one of ``frames`` that pays for compilation (``compile=True``: every switch
-    under ``compile`` of ``conf/train.yaml``), one of ``frames`` at the steady state, and one of only the
-    warm-up (random actions, no updates; it runs about twice as fast). ``frames_per_s`` is the whole job's
-    rate, warm-up included; ``updating_frames_per_s`` its frames after the warm-up over its time minus the
-    warm-up job's: one update per frame, evaluations included, the rate of the bulk of a long run.
+    A first job compiles (``compile=True``: every switch under ``compile`` of ``conf/train.yaml``) what later
+    jobs of the process reuse (the env's, the transforms' and the evaluation policy's functions); its time
+    is reported. Then ``repeats`` jobs of ``frames`` frames and one of only the warm-up (random actions, no
+    updates; it runs about twice as fast). The rate of the updating frames (one update each, evaluations
+    included) is theirs over a job's time minus the warm-up job's and minus the job's first optimiser step
+    (the ``first_update`` phase: each job compiles its own, ``aia.compiling.compiled_update``): the rate of
+    the bulk of a long run. The median job also gives the split of an updating frame's time over the loop's
+    phases (its ``aia.timing.PhaseTimer`` totals minus the warm-up job's: collect, buffer, update, evaluate,
+    other) and the wall time of a whole job.
     """
     exploration = "thompson" if algo == "adfq" else "egreedy"
     switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
     overrides = [f"algo={algo}", f"exploration={exploration}", "logger=none", f"device={device}", *switches]
     warmup = _config(*overrides).warmup_frames
-    seconds, states = [], []
-    for length in (frames, frames, warmup):
+
+    def job(length: int):
         cfg = _config(*overrides, f"frames={length}")
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
-            states.append(train(cfg, Path(out)))
-            seconds.append(time.perf_counter() - start)
-    job = states[1]
+            state = train(cfg, Path(out))
+            return time.perf_counter() - start, state.seconds
+
+    first_run_s, _ = job(frames)
+    jobs = [job(frames) for _ in range(repeats)]
+    warmup_s, warmup_phases = job(warmup)
+    warmup_s -= warmup_phases.pop("first_update", 0.0)  # its last frame makes one (compiling) update
+    runs = []
+    for job_s, phases in jobs:
+        updating_s = job_s - warmup_s - phases["first_update"]
+        split = {phase: 1e3 * (t - warmup_phases.get(phase, 0.0)) / (frames - warmup)
+                 for phase, t in phases.items() if phase != "first_update"}
+        runs.append({"rate": (frames - warmup) / updating_s, "job_s": job_s, "split": split})
+    runs.sort(key=lambda run: run["rate"])
+    median = runs[len(runs) // 2]
     return {"kind": "loop", "setting": "empty1", "algo": algo, "device": device, "compiled": compile,
-            "frames": job.frames, "updates": job.updates, "evaluations": job.evaluations,
-            "first_run_s": seconds[0], "seconds": seconds[1], "frames_per_s": job.frames / seconds[1],
-            "warmup_s": seconds[2], "updating_frames_per_s": (job.frames - warmup) / (seconds[1] - seconds[2]),
-            "ms_per_frame_by_phase": {phase: 1e3 * t / job.frames for phase, t in job.seconds.items()}}
+            "frames": frames, "warmup_frames": warmup, "first_run_s": first_run_s, "job_s": median["job_s"],
+            "warmup_s": warmup_s, "updating_frames_per_s": median["rate"],
+            "updating_frames_per_s_runs": [run["rate"] for run in runs],
+            "ms_per_updating_frame_by_phase": median["split"]}
+
+
+def calibrate() -> dict:
+    """How fast this machine runs now: microseconds of a 128x256 by 256x256 matmul and of a tiny tensor op.
+
+    Shared virtual machines vary by up to 2x over minutes; these two figures, taken before and after the
+    measurements, say which regime a table was measured in.
+    """
+    a, b, x = torch.randn(128, 256), torch.randn(256, 256), torch.randn(8)
+    result = {}
+    for name, op, calls in (("matmul_us", lambda: a @ b, 2000), ("tiny_op_us", lambda: x + 1, 20000)):
+        for _ in range(calls // 20):
+            op()
+        start = time.perf_counter()
+        for _ in range(calls):
+            op()
+        result[name] = 1e6 * (time.perf_counter() - start) / calls
+    return result
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--loop-frames", type=int, default=2000)
+    parser.add_argument("--loop-frames", type=int, default=2000, help="frames of a loop job (500 of them warm-up)")
+    parser.add_argument("--repeats", type=int, default=3, help="loop jobs per variant (median)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--parts", default="updates,loop", help="comma-separated: updates, loop")
     args = parser.parse_args()
@@ -122,6 +159,7 @@ def main() -> None:
     if not parts or not parts <= {"updates", "loop"}:
         parser.error(f"--parts {args.parts!r}: expected a comma-separated subset of updates,loop")
 
+    calibration_before = calibrate()
     rows = []
     if "updates" in parts:
         print(f"{'network':<8}{'algo':<6}{'mode':<10}{'ms/update':>11}{'updates/s':>11}{'first call s':>14}")
@@ -134,23 +172,25 @@ def main() -> None:
                 print(f"{row['network']:<8}{algo:<6}{mode:<10}{row['ms_per_update']:>11.2f}"
                       f"{row['updates_per_s']:>11,.0f}{row['first_call_s']:>14.1f}", flush=True)
     if "loop" in parts:
-        print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'frames/s':>10}{'updating':>10}"
-              f"{'first run s':>13}  ms per frame by phase")
+        print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'updating frames/s':>24}"
+              f"{'job s':>8}{'first s':>9}  ms per frame by phase")
     for algo in ("dqn", "ddqn", "adfq") if "loop" in parts else ():
         for compile in (False, True):
-            row = measure_loop(algo, args.device, args.loop_frames, compile)
+            row = measure_loop(algo, args.device, args.loop_frames, compile, args.repeats)
             rows.append(row)
             mode = "compiled" if compile else "eager"
+            runs = "/".join(f"{rate:.0f}" for rate in row["updating_frames_per_s_runs"])
             phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
-                               sorted(row["ms_per_frame_by_phase"].items(), key=lambda item: -item[1]))
-            print(f"{algo:<40}{mode:<10}{row['frames_per_s']:>10,.0f}{row['updating_frames_per_s']:>10,.0f}"
-                  f"{row['first_run_s']:>13.1f}  {phases}", flush=True)
+                               sorted(row["ms_per_updating_frame_by_phase"].items(), key=lambda item: -item[1]))
+            print(f"{algo:<40}{mode:<10}{row['updating_frames_per_s']:>8,.0f} ({runs:>13}){row['job_s']:>8.1f}"
+                  f"{row['first_run_s']:>9.1f}  {phases}", flush=True)
 
     out = args.out or Path(__file__).parent / "results" / f"train_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
             "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
-            "load_average_1_5_15min": os.getloadavg()}  # other processes' CPU use distorts the timings
+            "load_average_1_5_15min": os.getloadavg(),  # other processes' CPU use distorts the timings
+            "calibration_before": calibration_before, "calibration_after": calibrate()}
     measured = {"update" if part == "updates" else "loop" for part in parts}
     if out.exists() and measured != {"update", "loop"}:  # a partial run keeps the other part's earlier rows
         kept = [row for row in json.loads(out.read_text())["results"] if row["kind"] not in measured]

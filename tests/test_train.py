@@ -163,10 +163,35 @@ def test_training_runs_with_every_compile_switch_on(tmp_path):
     assert all(torch.isfinite(value).all() for value in checkpoint["actor"].values())
 
 
-def test_updater_needs_a_single_group_adam(tmp_path):
+@pytest.mark.parametrize("switch", [False, True])
+def test_compile_update_switch_decides_whether_the_step_is_compiled(tmp_path, monkeypatch, switch):
+    # compile.update is also the name of DictConfig's dict method: reading the switch as an attribute
+    # gave that (truthy) method, and every run compiled its optimiser step.
+    import aia.train
+
+    calls = []
+    monkeypatch.setattr(aia.train, "compiled_update", lambda fn: calls.append(fn) or fn)
+    train(_config("frames=120", f"compile.update={str(switch).lower()}", *SMALL), tmp_path)
+    assert calls == ([aia.train.adam_step] if switch else [])
+
+
+def test_updater_needs_a_single_group_plain_adam(tmp_path):
     _, loss, _, target_updater, _ = _update_setup("dqn")
     with pytest.raises(TypeError, match="Adam"):
         Updater(loss, torch.optim.SGD(loss.parameters(), lr=0.1), target_updater, 10.0)
+    with pytest.raises(ValueError, match=r"plain Adam.*got \{'weight_decay': 0.1, 'amsgrad': True\}"):
+        Updater(loss, torch.optim.Adam(loss.parameters(), weight_decay=0.1, amsgrad=True), target_updater, 10.0)
+
+
+def test_compiled_update_reads_the_learning_rate_at_every_step():
+    cfg, loss, optimizer, target_updater, batches = _update_setup("dqn")
+    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=True)
+    update(batches[0].clone())
+    optimizer.param_groups[0]["lr"] = 0.0  # e.g. a schedule's last value
+    before = [p.detach().clone() for p in loss.parameters()]
+    update(batches[1].clone())
+    assert all(torch.equal(p, q) for p, q in zip(loss.parameters(), before, strict=True))
+    assert all(state["step"] == 2 for state in optimizer.state.values())
 
 
 def test_bad_configs_name_the_field(tmp_path):
