@@ -30,6 +30,7 @@ class PhaseTimer:
         return ", ".join(f"{phase} {100 * seconds / total:.0f}% ({seconds:.1f} s)" for phase, seconds in ranked)
 
     def __call__(self, phase: str) -> _TimedPhase:
+        """A context manager that counts the wall-clock time of its block for ``phase``."""
         return _TimedPhase(self, phase)
 
 
