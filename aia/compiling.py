@@ -55,7 +55,10 @@ def compiled_update(fn: types.FunctionType) -> Callable:
     on its tensors' metadata and on the global state, which is sound because the copy is private
     (:func:`private_copy`: no other caller can reach its cache) and its caller passes the same objects with
     the same settings at every call (:class:`aia.train.Updater`: one loss module, whose hyperparameters are
-    fixed, and replayed batches of one layout). A changed shape, dtype or device still recompiles.
+    fixed, and replayed batches of one layout). A changed shape, dtype or device still recompiles. The
+    graph's own checks of its inputs' sizes and strides (``size_asserts``) are off: the kept guards have
+    checked them before the graph runs (4 % of a 3x128 ADFQ step).
     """
     torch._dynamo.config.trace_autograd_ops = True
-    return compiled(private_copy(fn), options={"guard_filter_fn": tensor_and_global_guards})
+    options = {"guard_filter_fn": tensor_and_global_guards, "size_asserts": False}
+    return compiled(private_copy(fn), options=options)
