@@ -19,6 +19,7 @@ Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<d
 
     python benchmarks/train_throughput.py
     python benchmarks/train_throughput.py --parts loop     # only the training loop
+    python benchmarks/train_throughput.py --parts loop --algos adfq
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from aia.train import Updater, make_actor, make_loss, train
 
 SETTINGS = {"empty1": "3x128", "small3": "3x256"}
 EXPERIMENTS = {"empty1": "paper_empty1", "small3": "paper_small3"}
+ALGOS = ("dqn", "ddqn", "adfq")
 LOOP_SWITCHES = ("update", "env", "policy")  # the compile.* switches of conf/train.yaml
 
 
@@ -154,17 +156,21 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="loop jobs per variant (median)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--parts", default="updates,loop", help="comma-separated: updates, loop")
+    parser.add_argument("--algos", default="dqn,ddqn,adfq", help="comma-separated subset of dqn, ddqn, adfq")
     args = parser.parse_args()
     parts = set(args.parts.split(","))
     if not parts or not parts <= {"updates", "loop"}:
         parser.error(f"--parts {args.parts!r}: expected a comma-separated subset of updates,loop")
+    algos = args.algos.split(",")
+    if not algos or not set(algos) <= set(ALGOS):
+        parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ALGOS)}")
 
     calibration_before = calibrate()
     rows = []
     if "updates" in parts:
         print(f"{'network':<8}{'algo':<6}{'mode':<10}{'ms/update':>11}{'updates/s':>11}{'first call s':>14}")
     for setting in SETTINGS if "updates" in parts else ():
-        for algo in ("dqn", "ddqn", "adfq"):
+        for algo in algos:
             for compile in (False, True):
                 row = measure_updates(setting, algo, args.device, compile)
                 rows.append(row)
@@ -174,7 +180,7 @@ def main() -> None:
     if "loop" in parts:
         print(f"\n{'loop (empty1, 1 world, 1 update/frame)':<40}{'mode':<10}{'updating frames/s':>24}"
               f"{'job s':>8}{'first s':>9}  ms per frame by phase")
-    for algo in ("dqn", "ddqn", "adfq") if "loop" in parts else ():
+    for algo in algos if "loop" in parts else ():
         for compile in (False, True):
             row = measure_loop(algo, args.device, args.loop_frames, compile, args.repeats)
             rows.append(row)
@@ -191,10 +197,10 @@ def main() -> None:
             "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
             "load_average_1_5_15min": os.getloadavg(),  # other processes' CPU use distorts the timings
             "calibration_before": calibration_before, "calibration_after": calibrate()}
-    measured = {"update" if part == "updates" else "loop" for part in parts}
-    if out.exists() and measured != {"update", "loop"}:  # a partial run keeps the other part's earlier rows
-        kept = [row for row in json.loads(out.read_text())["results"] if row["kind"] not in measured]
-        rows = kept + rows
+    measured = {("update" if part == "updates" else "loop", algo) for part in parts for algo in algos}
+    if out.exists():  # a partial run keeps the earlier rows it did not measure again (meta: this run's)
+        earlier = json.loads(out.read_text())["results"]
+        rows = [row for row in earlier if (row["kind"], row["algo"]) not in measured] + rows
     out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
     print(f"wrote {out}")
 
