@@ -12,8 +12,8 @@
    the loop's phases (``aia.timing.PhaseTimer``: collect, buffer, update, evaluate, other); also the wall
    time of a whole job and of the first (compiling) job.
 
-The virtual machines we measure on vary by up to 2x over minutes: the JSON's ``meta`` holds a calibration
-(a matmul's and a tiny op's microseconds) taken before and after, and the loop's rates of every job.
+The virtual machines we measure on vary by up to 2x over minutes: the JSON keeps the loop's rate of every
+job, and its ``meta`` a calibration (a matmul's and a tiny op's microseconds) taken before and after.
 
 Prints a table and writes JSON (default ``benchmarks/results/train_throughput_<device>.json``).
 
@@ -134,8 +134,8 @@ def measure_loop(algo: str, device: str, frames: int, compile: bool, repeats: in
 def calibrate() -> dict:
     """How fast this machine runs now: microseconds of a 128x256 by 256x256 matmul and of a tiny tensor op.
 
-    Shared virtual machines vary by up to 2x over minutes; these two figures, taken before and after the
-    measurements, say which regime a table was measured in.
+    A coarse check, taken before and after the measurements: it shows a CPU slowed for the whole run, not
+    every swing of a shared VM (the loop's rate has moved by 1.4x while these two stayed within 10 %).
     """
     a, b, x = torch.randn(128, 256), torch.randn(256, 256), torch.randn(8)
     result = {}
