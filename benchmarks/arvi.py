@@ -10,16 +10,29 @@ mean score and the paired difference to the reference budget. Prints markdown ta
     python benchmarks/arvi.py                                   # CPU: empty1 and small3, 1 and 10 worlds
     python benchmarks/arvi.py --device cuda --episodes 0        # timings only
 
+Throughput: nodes generated per second per world-batch at a node budget (``--nodes`` per world), at 1, 10
+and 50 worlds, for this planner and for the planner of ``--baseline-commit`` (read from git and run in the
+same process, on the same states), with the ratio; and a profile of one call (where the time goes).
+
+    python benchmarks/arvi.py --only throughput   # the table and profile: results/arvi_cpu_throughput.{json,md}
+
 Timings on a machine shared with other jobs vary by tens of percent from run to run.
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import importlib.util
+import io
 import json
 import math
 import platform
+import pstats
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -32,6 +45,7 @@ from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy
 from aia.policies import RandomPolicy
 
 REFERENCE_BUDGET = 1.0  # seconds per call (the reference's ARVI)
+BASELINE_COMMIT = "54a9a5a"  # the planner before issue 16 (aia/planners/arvi.py)
 
 
 def planning_states(setting: str, num_worlds: int, states: int, device: str) -> list:
@@ -67,6 +81,71 @@ def measure_speed(setting: str, num_worlds: int, budget: float, states: int, dev
             "delta_reached": statistics.median(deltas)}
 
 
+def load_baseline(commit: str):
+    """The planner module ``aia/planners/arvi.py`` of ``commit``, imported from git."""
+    source = subprocess.run(["git", "show", f"{commit}:aia/planners/arvi.py"], capture_output=True, text=True,
+                            check=True, cwd=Path(__file__).parent).stdout
+    path = Path(tempfile.mkdtemp()) / "arvi_baseline.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location("arvi_baseline", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def measure_throughput(setting: str, num_worlds: int, nodes: int, states: int, device: str, baseline) -> dict:
+    """Nodes generated per second per call (all worlds together) at ``nodes`` per world: this planner and
+    ``baseline``'s, on the same ``states`` batches (median), and whether their plans are identical."""
+    env = make_env(setting, batch_size=num_worlds, device=device, seed=0, transforms=False)
+    batches = planning_states(setting, num_worlds, states, device)
+    row = {"setting": setting, "targets": env.num_targets, "worlds": num_worlds, "nodes_per_world": nodes,
+           "device": device, "states": states, "identical_plans": True}
+    plans = {}
+    for name, module in (("new", sys.modules["aia.planners"]), ("old", baseline)):
+        planner = module.ARVIPlanner(env, module.ARVIConfig(time_budget=None, max_nodes=nodes))
+        planner.plan(*batches[0])  # warm-up
+        rates, plans[name] = [], []
+        for batch in batches:
+            _sync(device)
+            start = time.perf_counter()
+            result = planner.plan(*batch)
+            _sync(device)
+            rates.append(result.nodes.sum().item() / (time.perf_counter() - start))
+            plans[name].append(result.actions)
+        row[f"{name}_nodes_per_s"] = statistics.median(rates)
+    row["identical_plans"] = all(torch.equal(a, b) for a, b in zip(plans["new"], plans["old"], strict=True))
+    row["ratio"] = row["new_nodes_per_s"] / row["old_nodes_per_s"]
+    return row
+
+
+def profile_call(setting: str, num_worlds: int, nodes: int, device: str, top: int = 15) -> str:
+    """cProfile of one planning call (by own time): where the time goes."""
+    env = make_env(setting, batch_size=num_worlds, device=device, seed=0, transforms=False)
+    planner = ARVIPlanner(env, ARVIConfig(time_budget=None, max_nodes=nodes))
+    batch = planning_states(setting, num_worlds, 1, device)[0]
+    planner.plan(*batch)
+    profile = cProfile.Profile()
+    profile.runcall(planner.plan, *batch)
+    out = io.StringIO()
+    pstats.Stats(profile, stream=out).sort_stats("tottime").print_stats(top)
+    return out.getvalue()
+
+
+def markdown_table(header: list[str], cells: list[list[str]]) -> str:
+    """A markdown table, the first column left-aligned and the others right-aligned."""
+    lines = ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in cells])
+
+
+def throughput_table(rows: list[dict]) -> str:
+    return markdown_table(
+        ["setting", "targets", "worlds", "nodes per world", "old nodes/s", "new nodes/s", "ratio", "identical plans"],
+        [[r["setting"], str(r["targets"]), str(r["worlds"]), f"{r['nodes_per_world']:,}",
+          f"{r['old_nodes_per_s']:,.0f}",
+          f"{r['new_nodes_per_s']:,.0f}", f"{r['ratio']:.2f}", "yes" if r["identical_plans"] else "NO"] for r in rows])
+
+
 def measure_scores(setting: str, budget: float, episodes: int, device: str) -> list[float]:
     """Scores of single-world episodes with seeds ``0 .. episodes - 1`` at ``budget`` seconds per plan."""
     scores = []
@@ -84,13 +163,11 @@ def _sync(device: str) -> None:
 
 
 def speed_table(rows: list[dict]) -> str:
-    lines = ["| setting | targets | worlds | budget (s) | ms per call (max) | nodes per world | delta reached |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        lines.append(f"| {r['setting']} | {r['targets']} | {r['worlds']} | {r['budget_s']:g} | "
-                     f"{r['ms_per_call']:.1f} ({r['ms_max']:.1f}) | {r['nodes_per_world']:,.0f} | "
-                     f"{r['delta_reached']:.2f} |")
-    return "\n".join(lines)
+    return markdown_table(
+        ["setting", "targets", "worlds", "budget (s)", "ms per call (max)", "nodes per world", "delta reached"],
+        [[r["setting"], str(r["targets"]), str(r["worlds"]), f"{r['budget_s']:g}",
+          f"{r['ms_per_call']:.1f} ({r['ms_max']:.1f})", f"{r['nodes_per_world']:,.0f}", f"{r['delta_reached']:.2f}"]
+         for r in rows])
 
 
 def quality_summary(quality: dict) -> str:
@@ -117,9 +194,28 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1,
                         help="torch CPU threads (planning is latency-bound: on a busy machine a second thread "
                              "makes every batched Cholesky wait for the other core)")
+    parser.add_argument("--only", choices=["throughput", "timing"], default=None,
+                        help="run only the throughput table (and profile) or only the timing and score tables")
+    parser.add_argument("--nodes", type=int, default=5000, help="node budget per world of the throughput table")
+    parser.add_argument("--throughput-worlds", nargs="+", type=int, default=[1, 10, 50])
+    parser.add_argument("--throughput-states", type=int, default=3, help="planning calls timed per throughput case")
+    parser.add_argument("--baseline-commit", default=BASELINE_COMMIT, help="git commit of the planner to compare to")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+
+    throughput, profile = [], ""
+    if args.only != "timing":
+        baseline = load_baseline(args.baseline_commit)
+        for setting in args.settings:
+            for worlds in args.throughput_worlds:
+                throughput.append(measure_throughput(setting, worlds, args.nodes, args.throughput_states, args.device,
+                                                     baseline))
+                print(throughput_table(throughput[-1:]).splitlines()[-1], flush=True)
+        profile = profile_call(args.settings[-1], max(args.throughput_worlds), args.nodes, args.device)
+        print(profile)
+    if args.only == "throughput":
+        args.worlds, args.episodes = [], 0
 
     budgets = [args.fast_budget, REFERENCE_BUDGET]
     rows = []
@@ -134,14 +230,23 @@ def main() -> None:
             quality[str(budget)] = measure_scores(args.quality_setting, budget, args.episodes, args.device)
             print(f"budget {budget:g} s: scores {[round(s) for s in quality[str(budget)]]}", flush=True)
 
-    out = args.out or Path(__file__).parent / "results" / f"arvi_{args.device.split(':')[0]}.json"
+    suffix = "_throughput" if args.only == "throughput" else ""
+    out = args.out or Path(__file__).parent / "results" / f"arvi_{args.device.split(':')[0]}{suffix}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
             "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
             "quality_setting": args.quality_setting}
-    out.write_text(json.dumps({"meta": meta, "speed": rows, "scores": quality}, indent=2))
-    print()
-    print(speed_table(rows))
+    meta["baseline_commit"] = args.baseline_commit
+    out.write_text(json.dumps({"meta": meta, "throughput": throughput, "speed": rows, "scores": quality}, indent=2))
+    if throughput:
+        table = throughput_table(throughput)
+        out.with_suffix(".md").write_text(f"{table}\n\nProfile ({args.settings[-1]}, "
+                                          f"{max(args.throughput_worlds)} worlds):\n\n{profile}")
+        print()
+        print(table)
+    if rows:
+        print()
+        print(speed_table(rows))
     if quality:
         print()
         print(quality_summary(quality))

@@ -1,11 +1,11 @@
 """Optimiser updates per second of each loss, and frames per second of the whole training loop.
 
-1. Updates: one Adam step (loss, backward, gradient clipping, target-update bookkeeping; ``aia.train.Updater``,
-   the training loop's) on a batch of 64 transitions with the replay buffer's keys (each update gets a fresh
-   copy, made outside the timing), for DQN, Double DQN and ADFQ, on the 1-target network (3 x 128, 8 inputs)
+1. Updates: one Adam step (loss, backward, gradient clipping, target-update bookkeeping;
+   ``aia.training.optimizer.Updater``, the training loop's, for a population of one) on a batch of 64
+   transitions with the replay buffer's keys (each update gets a fresh copy, made outside the timing), for DQN, Double DQN and ADFQ, on the 1-target network (3 x 128, 8 inputs)
    and the 3-target network (3 x 256, 20 inputs), eager and compiled (``compile.update=true``); median over
    5 windows, and the compiled variant's first call (compilation).
-2. Loop: ``aia.train.train`` in the paper's regime (one world, one update per frame, evaluation after
+2. Loop: ``aia.training.train`` in the paper's regime (one world, one update per frame, evaluation after
    every episode, ``eval.per_rollout`` of them played per batched rollout), eager and with every
    ``compile.*`` switch on: frames per second of the updating frames (the bulk of a long run; median of
    ``--repeats`` jobs of ``--loop-frames`` frames, ``measure_loop``), with the split of a frame's time over
@@ -38,7 +38,10 @@ from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
 from aia.envs import make_env
-from aia.train import Updater, make_actor, make_loss, train
+from aia.modules.q_networks import make_qvalue_actor
+from aia.training import train
+from aia.training.components import make_loss, make_stacked_network
+from aia.training.optimizer import StackedAdam, Updater
 
 SETTINGS = {"empty1": "3x128", "small3": "3x256"}
 EXPERIMENTS = {"empty1": "paper_empty1", "small3": "paper_small3"}
@@ -58,12 +61,13 @@ def measure_updates(setting: str, algo: str, device: str, compile: bool, updates
     cfg = _config(f"experiment={EXPERIMENTS[setting]}", f"algo={algo}", f"exploration={exploration}",
                   f"device={device}")
     env = make_env(setting, batch_size=64, device=device, seed=0)
-    actor = make_actor(cfg, env)
-    loss = make_loss(cfg, actor)
-    # 64 transitions with the keys that the loop's replay buffer keeps (the loss's in_keys)
-    batch = env.rollout(2, policy=actor)[:, -1].select(*loss.in_keys)
+    network = make_stacked_network([cfg], env.observation_spec["observation"].shape[-1], env.action_spec.n)
+    loss = make_loss(cfg, make_qvalue_actor(network, env.action_spec, adfq=algo == "adfq"))
+    # 64 transitions with the keys that the loop's replay buffer keeps (the loss's in_keys), one member
+    batch = env.rollout(2)[:, -1].select(*loss.in_keys).unsqueeze(0)
     updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
-    update = Updater(loss, torch.optim.Adam(loss.parameters(), lr=cfg.lr), updater, cfg.grad_clip, compile=compile)
+    optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [cfg.lr])
+    update = Updater(loss, optimizer, updater, cfg.grad_clip, compile=compile)
 
     start = time.perf_counter()
     update(batch.clone())  # each update gets a fresh batch, as a sample of the replay buffer

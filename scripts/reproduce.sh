@@ -11,7 +11,8 @@
 #   SEEDS        learner seeds [0,1,2,3,4];  ARVI_SEEDS  planner seeds [0,...,9]
 #   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
 #   TRAIN_OVERRIDES  more aia-train overrides, space-separated, e.g. "device=cuda" or "compile.update=false" []
-#   JOBS         learner runs in parallel [2];  OUT  output folder [outputs/repro]
+#   JOBS         learner populations in parallel [2] (each method's seeds train as one population:
+#                hydra/launcher=population);  OUT  output folder [outputs/repro]
 #   FIGURES      where the figures and tables go [$OUT/figures]
 #   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
 #   ARVI_EPISODES  episodes per ARVI seed, planned together in one batch [5]
@@ -59,8 +60,8 @@ for setting in $SETTINGS; do
     echo "unknown setting '$setting': expected some of empty1 obstacles1 small2 small3" >&2
     exit 2
   fi
-  echo "== $setting: learners (seeds $SEEDS), $JOBS at a time"
-  aia-train -m "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
+  echo "== $setting: learners (seeds $SEEDS), one population per method, $JOBS at a time"
+  aia-train -m hydra/launcher=population "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
     "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners" \
     "$RUN_NAME" 'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
   baselines=()

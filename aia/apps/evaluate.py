@@ -14,20 +14,21 @@ import math
 from dataclasses import asdict
 from pathlib import Path
 
-import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import StepCounter
 
+from aia.apps.hydra_app import hydra_app
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
-from aia.train import make_actor
+from aia.training import make_actor
+from aia.validation import validate_eval_config
 
 POLICIES = ("checkpoint", "arvi")
 
@@ -105,9 +106,10 @@ def _check_episodes(episodes: int) -> None:
         raise ValueError(f"episodes={episodes} must be >= 1")
 
 
-@hydra.main(config_path="pkg://aia.conf", config_name="eval", version_base="1.3")
+@hydra_app("aia-eval", config_name="eval")  # invalid input: one line on stderr, exit 2
 def main(cfg: DictConfig) -> None:
     """Entry point of ``aia-eval``."""
+    validate_eval_config(cfg, HydraConfig.get().overrides.task)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     if cfg.policy not in POLICIES:

@@ -32,6 +32,7 @@ from aia.logging.curves import (
     lower_is_better,
     select_runs,
 )
+from aia.logging.mcap_logger import flatten
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
 
 RENDER_FORMATS = (".gif", ".png")
@@ -39,9 +40,11 @@ SUMMARY_KEYS = ("algo", "exploration", "env.map", "env.num_targets", "seed", "fr
 
 
 def _status(run: RunLog) -> str:
-    if run.complete and not run.skipped_chunks:
+    if run.complete and not run.skipped_chunks and not run.failure:
         return "complete"
-    parts = [] if run.complete else [f"truncated: {len(run.messages)} messages recovered ({run.problem})"]
+    parts = [run.failure] if run.failure else []
+    if not run.complete:
+        parts.append(f"truncated: {len(run.messages)} messages recovered ({run.problem})")
     if run.skipped_chunks:
         parts.append(f"{run.skipped_chunks} corrupt chunk(s) skipped")
     return "; ".join(parts)
@@ -261,7 +264,7 @@ def _episode_index(text: str) -> int:
 def _read_all(patterns: Sequence[str]) -> list[RunLog]:
     runs = [read_run(path) for path in find_runs(list(patterns))]
     for run in runs:
-        if not run.complete or run.skipped_chunks:
+        if _status(run) != "complete":
             print(f"warning: {run.path}: {_status(run)}", file=sys.stderr)
     return runs
 
@@ -275,6 +278,16 @@ def _with_metric(runs: Sequence[RunLog], metric: str) -> list[RunLog]:
         else:
             print(f"warning: {run.path}: no {metric!r} yet, left out", file=sys.stderr)
     return kept
+
+
+def check_group_keys(runs: Sequence[RunLog], keys: Sequence[str]) -> None:
+    """Every ``--group-by`` key is a config key of at least one run; else a ValueError names it and the
+    keys the runs have."""
+    for key in keys:
+        if all(run.config_value(key) is None for run in runs):
+            groups = {k.rsplit(".name", 1)[0] for run in runs for k in flatten(run.config()) if k.endswith(".name")}
+            available = sorted(groups | {k for run in runs for k in flatten(run.config())})
+            raise ValueError(f"--group-by {key!r}: no run has this config key; available: {', '.join(available)}")
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -352,6 +365,7 @@ def run_command(args: argparse.Namespace) -> None:
         runs = _with_metric(select_runs(_read_all(args.runs), args.where), args.metric)
         if not runs:
             raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
+        check_group_keys(runs, args.group_by)
         baselines = read_baselines(args.baseline, args.baseline_label, args.where, args.metric)
         curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baselines)
         for curve in curves:

@@ -10,17 +10,16 @@ import json
 import time
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from aia.apps.hydra_app import hydra_app
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import episode_scores, run_episodes
 from aia.policies import BeliefPursuitPolicy, RandomPolicy
-
-POLICIES = ("random", "pursuit")
+from aia.validation import ROLLOUT_POLICIES, validate_rollout_config
 
 
 def make_policy(name: str, env, seed: int, standoff: float):
@@ -29,7 +28,7 @@ def make_policy(name: str, env, seed: int, standoff: float):
         return RandomPolicy(env.action_spec.n, seed=seed, device=env.device)
     if name == "pursuit":
         return BeliefPursuitPolicy(env.base_env, standoff=standoff)
-    raise ValueError(f"unknown policy {name!r}: expected one of {list(POLICIES)}")
+    raise ValueError(f"unknown policy {name!r}: expected one of {list(ROLLOUT_POLICIES)}")
 
 
 def score_policy(cfg: DictConfig, name: str) -> dict:
@@ -61,14 +60,10 @@ def score_policy(cfg: DictConfig, name: str) -> dict:
     }
 
 
-@hydra.main(config_path="pkg://aia.conf", config_name="rollout", version_base="1.3")
+@hydra_app("aia-rollout", config_name="rollout")  # invalid input: one line on stderr, exit 2
 def main(cfg: DictConfig) -> None:
-    """Entry point of ``aia-rollout``."""
-    unknown = [p for p in cfg.policies if p not in POLICIES]
-    if unknown:
-        raise ValueError(f"policies={list(cfg.policies)}: unknown {unknown}; allowed: {list(POLICIES)}")
-    if cfg.num_worlds < 1:
-        raise ValueError(f"num_worlds={cfg.num_worlds} must be >= 1")
+    """Entry point of ``aia-rollout`` (invalid input: one line on stderr, exit status 2)."""
+    validate_rollout_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     choice = HydraConfig.get().runtime.choices.get("env")
     print(f"setting {choice}: map {cfg.env.map}, {cfg.env.num_targets} target(s), {cfg.env.max_steps} steps, "

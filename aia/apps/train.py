@@ -1,51 +1,84 @@
 """``aia-train``: train a DQN, Double DQN or ADFQ policy on a tracking setting (Hydra app).
 
-``aia-train --help`` lists the config groups (env, algo, exploration, logger) and every field. A SIGTERM
-(a cluster's time limit, ``kill``) ends the run like Ctrl-C: the log is closed and stays readable.
+``aia-train --help`` lists the config groups (env, algo, exploration, logger) and every field. SIGTERM,
+SIGINT (Ctrl-C) and SIGUSR1 (a cluster's preemption or time limit) end the run after its current step: the
+pending evaluations are played, the checkpoint written and the log closed; the app says where the checkpoint
+is and exits with status 128 + signal (143 for SIGTERM). ``resume=auto`` continues from it.
 """
 
 from __future__ import annotations
 
 import signal
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
+import sys
+from collections.abc import Sequence
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from aia.apps.hydra_app import hydra_app
+from aia.errors import ConfigError
+from aia.objective import search_objective
 from aia.timing import PhaseTimer
-from aia.train import train
+from aia.training import TrainingState, train, train_population
+from aia.training.checkpoint import CHECKPOINT_NAME
+from aia.training.stopping import StopOnSignals
+from aia.validation import validate_train_config
 
 
-@contextmanager
-def sigterm_as_exit() -> Iterator[None]:
-    """Turn SIGTERM into ``SystemExit(143)`` so that ``finally`` blocks (closing the log) run."""
-    if threading.current_thread() is not threading.main_thread():
-        yield  # only the main thread may install handlers; a launcher's worker thread keeps the default
-        return
-
-    def _exit(signum: int, frame) -> None:
-        raise SystemExit(128 + signum)
-
-    previous = signal.signal(signal.SIGTERM, _exit)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-@hydra.main(config_path="pkg://aia.conf", config_name="train", version_base="1.3")
-def main(cfg: DictConfig) -> None:
-    """Entry point of ``aia-train``."""
+@hydra_app("aia-train", config_name="train")  # invalid input: one line on stderr, exit 2
+def main(cfg: DictConfig) -> float:
+    """Entry point of ``aia-train``; returns the run's search objective (:mod:`aia.objective`)."""
+    validate_train_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     choices = HydraConfig.get().runtime.choices
     print(f"training {cfg.algo.name} ({cfg.exploration.name}) on {choices.get('env')} for {cfg.frames} frames, "
           f"seed {cfg.seed}")
-    with sigterm_as_exit():
-        state = train(cfg, out_dir)
+    with StopOnSignals() as stop:
+        state = train(cfg, out_dir, stop)
+    report(cfg, out_dir, state)
+    exit_if_stopped(stop, [out_dir], state)
+    return search_objective(state.eval_scores)
+
+
+def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float | Exception]:
+    """The population launcher's task (``hydra/launcher=population``): the jobs' configs trained as one
+    population, member ``k`` in ``out_dirs[k]``; each job's search objective, or the error that stopped it
+    (an invalid config fails its own job only: the others train without it)."""
+    outcomes: dict[int, float | Exception] = {}
+    valid = []
+    for index, cfg in enumerate(cfgs):
+        try:
+            validate_train_config(cfg)
+            valid.append(index)
+        except ConfigError as err:
+            print(f"aia-train: error: job {index}: {err}", file=sys.stderr)
+            outcomes[index] = err
+    if valid:
+        first = cfgs[valid[0]]
+        print(f"training {first.algo.name} ({first.exploration.name}) for {first.frames} frames as a population of "
+              f"{len(valid)}, seeds {[cfgs[i].seed for i in valid]}")
+        with StopOnSignals() as stop:
+            states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop)
+        for index, state in zip(valid, states, strict=True):
+            report(cfgs[index], out_dirs[index], state)
+            outcomes[index] = search_objective(state.eval_scores)
+        exit_if_stopped(stop, [out_dirs[i] for i in valid], states[0])
+    return [outcomes[index] for index in range(len(cfgs))]
+
+
+def exit_if_stopped(stop: StopOnSignals, out_dirs: Sequence[Path], state: TrainingState) -> None:
+    """After a signal: one line saying where the checkpoints are, then exit with status 128 + signal."""
+    if not stop.signal:
+        return
+    where = ", ".join(str(Path(d) / CHECKPOINT_NAME) for d in out_dirs)
+    print(f"stopped by {signal.Signals(stop.signal).name} at frame {state.frames}: checkpoint {where} "
+          "(continue: the same command with resume=auto)", file=sys.stderr)
+    raise SystemExit(stop.exit_status)
+
+
+def report(cfg: DictConfig, out_dir: Path, state: TrainingState) -> None:
+    """What a finished run prints: its counters, last score, time split, log and checkpoint."""
     last = f"{state.eval_scores[-1]:.1f}" if state.eval_scores else "n/a"
     print(f"{state.frames} frames, {state.episodes} episodes, {state.updates} updates; last eval score {last}")
     print(f"time: {PhaseTimer(state.seconds).summary()}")
@@ -54,7 +87,7 @@ def main(cfg: DictConfig) -> None:
         print(f"log written to {log} (inspect: aia-log summary {log})")
     else:
         print(f"log written to {out_dir}")
-    print(f"checkpoint: {out_dir / 'checkpoints' / 'last.pt'}")
+    print(f"checkpoint: {out_dir / CHECKPOINT_NAME}")
 
 
 if __name__ == "__main__":

@@ -1,9 +1,10 @@
 """Typed configuration of the tracking env, its features and its reward.
 
-The dataclasses hold SPEC.md's defaults (the paper's text where the paper and the authors' 2019 code
+The dataclasses hold the defaults of docs/spec.md (the paper's text where the paper and the authors' 2019 code
 differ, and the 2019 reward); the Hydra presets in ``conf/env/`` override only what a setting changes.
-The schema is registered with Hydra's ConfigStore as ``env/schema`` so that every preset is type-checked
-and a misspelt field fails with its name.
+The schema is registered with Hydra's ConfigStore as the root config ``env_schema`` (each preset lists
+``/env_schema@_here_`` first), so that every preset is type-checked and a misspelt field fails with its
+name, and ``env=`` offers the settings only.
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from hydra.core.config_store import ConfigStore
+
+from aia.checks import check_choice, check_number, require
+from aia.envs.maps import check_start_margin, load_map
 
 
 @dataclass
@@ -128,6 +132,13 @@ _CHOICES = {
     "reward.obstacle_form": ("2019", "paper"),
     "dtype": ("float32", "float64"),
 }
+_POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "target.init_candidates")
+_POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing",
+             "belief.init_cov")
+_NON_NEGATIVE = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin", "belief.init_offset",
+                 "reward.obstacle_margin", "reward.collision_penalty")
+_NUMBERS = ("target.reflect_gain", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
+_POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit")
 
 
 def _get(cfg: TrackingConfig, dotted: str):
@@ -138,36 +149,33 @@ def _get(cfg: TrackingConfig, dotted: str):
 
 
 def validate(cfg: TrackingConfig) -> None:
-    """Raise ``ValueError`` naming the first field whose value is out of its allowed set or range."""
+    """Raise :class:`~aia.errors.ConfigError` naming the first field (``env.<field>``) whose value is out of
+    its allowed set or range, or the map file and field that is wrong (the map is loaded and checked here)."""
     for name, allowed in _CHOICES.items():
-        if _get(cfg, name) not in allowed:
-            raise ValueError(f"env.{name}={_get(cfg, name)!r} is not one of {list(allowed)}")
-    positive = ("num_targets", "max_steps", "dt", "collision_supersample", "sensor.range", "sensor.fov_deg",
-                "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing", "belief.init_cov",
-                "target.init_candidates")
-    for name in positive:
-        if not _get(cfg, name) > 0:
-            raise ValueError(f"env.{name}={_get(cfg, name)!r} must be > 0")
-    non_negative = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin",
-                    "belief.init_offset", "reward.obstacle_margin", "reward.collision_penalty")
-    for name in non_negative:
-        if not _get(cfg, name) >= 0:
-            raise ValueError(f"env.{name}={_get(cfg, name)!r} must be >= 0")
-    low, high = (cfg.target.init_distance + [None, None])[:2]
-    if len(cfg.target.init_distance) != 2 or not 0 <= low <= high:
-        raise ValueError(
-            f"env.target.init_distance={cfg.target.init_distance!r} must be [min, max] with 0 <= min <= max"
-        )
-    if len(cfg.robot.linear_speeds) == 0 or len(cfg.robot.angular_speeds) == 0:
-        raise ValueError("env.robot.linear_speeds and env.robot.angular_speeds must not be empty")
-    if cfg.sensor.fov_deg > 360:
-        raise ValueError(f"env.sensor.fov_deg={cfg.sensor.fov_deg!r} must be <= 360")
-    for name in ("belief.det_cap", "belief.speed_clip", "target.speed_limit"):
-        value = _get(cfg, name)
-        if value is not None and not value > 0:
-            raise ValueError(f"env.{name}={value!r} must be > 0 or null")
-    if cfg.belief.q is not None and not cfg.belief.q >= 0:
-        raise ValueError(f"env.belief.q={cfg.belief.q!r} must be >= 0 or null")
+        check_choice(f"env.{name}", _get(cfg, name), allowed)
+    for name in _POSITIVE_INTEGERS:
+        check_number(f"env.{name}", _get(cfg, name), ge=1, integer=True)
+    for name in _POSITIVE:
+        check_number(f"env.{name}", _get(cfg, name), gt=0)
+    for name in _NON_NEGATIVE:
+        check_number(f"env.{name}", _get(cfg, name), ge=0)
+    for name in _NUMBERS:
+        check_number(f"env.{name}", _get(cfg, name))
+    for name in _POSITIVE_OR_NULL:
+        check_number(f"env.{name}", _get(cfg, name), gt=0, optional=True)
+    check_number("env.belief.q", cfg.belief.q, ge=0, optional=True)
+    check_number("env.sensor.fov_deg", cfg.sensor.fov_deg, gt=0, le=360)
+    distance = list(cfg.target.init_distance)
+    require(len(distance) == 2 and all(isinstance(d, (int, float)) for d in distance)
+            and 0 <= distance[0] <= distance[1],
+            "env.target.init_distance", distance, "[min, max] with 0 <= min <= max")
+    for name in ("robot.linear_speeds", "robot.angular_speeds"):
+        speeds = list(_get(cfg, name))
+        require(len(speeds) > 0 and all(isinstance(v, (int, float)) for v in speeds), f"env.{name}", speeds,
+                "a non-empty list of numbers")
+    check_start_margin(load_map(cfg.map), cfg.margin)
 
 
-ConfigStore.instance().store(group="env", name="schema", node=TrackingConfig)
+# A root config, not a member of the env group: `env=<name>` offers only the settings. Presets start with
+# `- /env_schema@_here_` in their defaults.
+ConfigStore.instance().store(name="env_schema", node=TrackingConfig)

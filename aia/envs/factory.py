@@ -16,23 +16,22 @@ from omegaconf.errors import OmegaConfBaseException
 from torchrl.envs import Compose, TransformedEnv
 
 import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's ConfigStore)
+from aia.checks import check_choice
 from aia.envs.config import TrackingConfig
 from aia.envs.tracking import TargetTrackingEnv
+from aia.errors import ConfigError, one_line
 from aia.transforms import BeliefFeatures, InfoReward
-
-_NOT_SETTINGS = {"schema", "variant_2019"}
 
 
 def available_settings() -> list[str]:
     """Names of the env presets in ``conf/env/`` (the four paper settings and their ``_2019`` twins)."""
     folder = Path(str(resources.files("aia.conf") / "env"))
-    return sorted(p.stem for p in folder.glob("*.yaml") if p.stem not in _NOT_SETTINGS)
+    return sorted(p.stem for p in folder.glob("*.yaml"))
 
 
 def load_env_config(setting: str = "empty1", overrides: Sequence[str] = ()) -> TrackingConfig:
     """Compose the preset ``setting`` with Hydra-style ``overrides`` (``"sensor.range=12"``) into a config."""
-    if setting not in available_settings():
-        raise ValueError(f"unknown env setting {setting!r}: expected one of {available_settings()}")
+    check_choice("env", setting, available_settings())
     hydra_overrides = [f"env={setting}", *(f"env.{o}" for o in overrides)]
     context = (
         nullcontext()
@@ -43,19 +42,21 @@ def load_env_config(setting: str = "empty1", overrides: Sequence[str] = ()) -> T
         with context:
             cfg = compose(config_name="env_setting", overrides=hydra_overrides)
     except (HydraException, OmegaConfBaseException) as err:
-        raise ValueError(f"bad env override in {list(overrides)}: {err}") from None
+        raise ConfigError("overrides", list(overrides), f"overrides of env fields ({one_line(err)})") from None
     return to_tracking_config(cfg.env)
 
 
 def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
-    """A validated :class:`TrackingConfig` from a composed ``env`` node (or the config itself)."""
+    """A validated :class:`TrackingConfig` from a composed ``env`` node (or the config itself); a
+    :class:`~aia.errors.ConfigError` names the first bad field."""
     if isinstance(cfg, TrackingConfig):
         return cfg
     try:
         merged = OmegaConf.merge(OmegaConf.structured(TrackingConfig), cfg)
         return OmegaConf.to_object(merged)
     except OmegaConfBaseException as err:
-        raise ValueError(f"invalid env config: {err}") from None
+        allowed = f"a value of the env schema ({one_line(err.msg)})"
+        raise ConfigError(f"env.{err.full_key}", err.value, allowed) from None
 
 
 def make_transforms(config: TrackingConfig, compile: bool = False) -> Compose:
@@ -82,7 +83,8 @@ def make_env(
     if isinstance(setting, str):
         config = load_env_config(setting, overrides)
     elif overrides:
-        raise ValueError("overrides apply to a preset name; edit the config object directly instead")
+        raise ConfigError("overrides", list(overrides), "none with a config object (they apply to a preset name; "
+                          "edit the config object instead)")
     else:
         config = to_tracking_config(setting)
     env = TargetTrackingEnv(

@@ -20,6 +20,9 @@ import torch
 import yaml
 from torch import Tensor
 
+from aia.checks import check_number, require
+from aia.errors import ConfigError
+
 _MAP_KEYS = {"size", "resolution", "robot_start", "border_cells", "boxes", "rotated_boxes", "grid", "description"}
 
 
@@ -32,6 +35,8 @@ class GridMap:
     occupancy: Tensor
     # None: the robot starts uniformly in the collision-free space; else a fixed (x, y).
     robot_start: tuple[float, float] | None = None
+    # Where the map came from (its file's path), for messages.
+    source: str | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -62,79 +67,133 @@ def available_maps() -> list[str]:
 
 @functools.lru_cache(maxsize=32)
 def load_map(name_or_path: str) -> GridMap:
-    """Load a shipped map by name (``"obstacles4"``) or any map YAML by path."""
+    """Load a shipped map by name (``"obstacles4"``) or any map YAML by path; a
+    :class:`~aia.errors.ConfigError` names the file, the field and what is allowed."""
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = map_directory() / f"{name_or_path}.yaml"
-        if not path.is_file():
-            raise ValueError(
-                f"unknown map {name_or_path!r}: expected one of {available_maps()} or a path to a map .yaml file"
-            )
-    elif not path.is_file():
-        raise ValueError(f"map file {str(path)!r} does not exist")
-    spec = yaml.safe_load(path.read_text())
-    return build_map(spec, name=path.stem, base_dir=path.parent)
-
-
-def build_map(spec: dict, name: str = "custom", base_dir: Path | None = None) -> GridMap:
-    """Build a :class:`GridMap` from a map specification (the parsed YAML; see the module docstring)."""
-    if not isinstance(spec, dict):
-        raise ValueError(f"map {name!r}: expected a mapping of fields, got {type(spec).__name__}")
-    unknown = set(spec) - _MAP_KEYS
-    if unknown:
-        raise ValueError(f"map {name!r}: unknown fields {sorted(unknown)}; allowed: {sorted(_MAP_KEYS)}")
+        require(path.is_file(), "env.map", name_or_path,
+                f"one of {available_maps()} or a path to a map .yaml file")
+    require(path.is_file(), "env.map", name_or_path, "an existing map .yaml file (this one does not exist)")
     try:
-        width, height = (float(v) for v in spec["size"])
-        resolution = float(spec["resolution"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"map {name!r}: needs 'size: [width, height]' and 'resolution' in metres ({err})") from None
-    if resolution <= 0 or width <= 0 or height <= 0:
-        raise ValueError(f"map {name!r}: size {[width, height]} and resolution {resolution} must be positive")
+        spec = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1}: {err.problem})" if mark else ""
+        raise ConfigError("env.map", str(path), f"a map file that parses as YAML{where}") from None
+    return build_map(spec, name=path.stem, base_dir=path.parent, source=str(path))
+
+
+def build_map(spec: dict, name: str = "custom", base_dir: Path | None = None, source: str | None = None) -> GridMap:
+    """Build a :class:`GridMap` from a map specification (the parsed YAML; see the module docstring).
+    Every field is checked (sizes positive, obstacles inside the map, the robot's start inside and free);
+    a :class:`~aia.errors.ConfigError` names ``source`` (default: ``map '<name>'``) and the field."""
+    source = source or f"map {name!r}"
+    require(isinstance(spec, dict), "map", type(spec).__name__, "a mapping of fields (size, resolution, ...)", source)
+    unknown = sorted(set(spec) - _MAP_KEYS)
+    require(not unknown, "fields", unknown, f"fields among {sorted(_MAP_KEYS)}", source)
+    size = spec.get("size")
+    require(isinstance(size, list) and len(size) == 2 and all(_is_number(v) and v > 0 for v in size), "size", size,
+            "[width, height] in metres, both > 0", source)
+    width, height = float(size[0]), float(size[1])
+    check_number("resolution", spec.get("resolution"), gt=0, source=source)
+    resolution = float(spec["resolution"])
     nx, ny = round(width / resolution), round(height / resolution)
-    if not (math.isclose(nx * resolution, width, abs_tol=1e-6) and math.isclose(ny * resolution, height, abs_tol=1e-6)):
-        raise ValueError(f"map {name!r}: size {[width, height]} is not a whole number of {resolution} m cells")
+    whole = math.isclose(nx * resolution, width, abs_tol=1e-6) and math.isclose(ny * resolution, height, abs_tol=1e-6)
+    require(whole, "size", size, f"a whole number of {resolution} m cells (resolution)", source)
 
     if spec.get("grid") is not None:
-        occupancy = _load_grid(Path(base_dir or ".") / spec["grid"], (ny, nx), name)
+        occupancy = _load_grid(Path(base_dir or ".") / spec["grid"], (ny, nx), source)
     else:
-        occupancy = _rasterise(spec, nx, ny, resolution)
+        occupancy = _rasterise(_checked_geometry(spec, width, height, nx, ny, source), nx, ny, resolution)
 
     start = spec.get("robot_start")
-    if start is not None:
+    if start is None:
+        require(not bool(occupancy.all()), "robot_start", None, "a map with a free cell to start in", source)
+    else:
+        inside = (isinstance(start, list) and len(start) == 2 and all(_is_number(v) for v in start)
+                  and 0 <= start[0] <= width and 0 <= start[1] <= height)
+        require(inside, "robot_start", start, f"[x, y] inside [0, {width}] x [0, {height}]", source)
         start = (float(start[0]), float(start[1]))
-        if not (0 <= start[0] <= width and 0 <= start[1] <= height):
-            raise ValueError(f"map {name!r}: robot_start {list(start)} lies outside [0, {width}] x [0, {height}]")
-    return GridMap(name=name, resolution=resolution, occupancy=occupancy, robot_start=start)
+        col, row = min(int(start[0] / resolution), nx - 1), min(int(start[1] / resolution), ny - 1)
+        require(not bool(occupancy[row, col]), "robot_start", list(start), "a free cell (this one is occupied)",
+                source)
+    return GridMap(name=name, resolution=resolution, occupancy=occupancy, robot_start=start, source=source)
 
 
-def _load_grid(path: Path, expected: tuple[int, int], name: str) -> Tensor:
-    if not path.is_file():
-        raise ValueError(f"map {name!r}: grid file {str(path)!r} does not exist")
+def check_start_margin(grid_map: GridMap, margin: float) -> None:
+    """The map's fixed start, if any, lies at least ``margin`` (the env's collision margin) from its bounds."""
+    if grid_map.robot_start is None:
+        return
+    x, y = grid_map.robot_start
+    ok = margin <= x <= grid_map.width - margin and margin <= y <= grid_map.height - margin
+    require(ok, "robot_start", list(grid_map.robot_start),
+            f"a start at least env.margin={margin} m from the map's bounds", grid_map.source)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _checked_geometry(spec: dict, width: float, height: float, nx: int, ny: int, source: str) -> dict:
+    """The obstacle fields of ``spec``, each checked: a border thinner than half the map, boxes inside it."""
+    border = spec.get("border_cells") or 0
+    check_number("border_cells", border, ge=0, le=(min(nx, ny) - 1) // 2, integer=True, source=source)
+    inside = f"inside the map [0, {width}] x [0, {height}]"
+    boxes = spec.get("boxes") or []
+    require(isinstance(boxes, list), "boxes", boxes, "a list of [xmin, ymin, xmax, ymax]", source)
+    for i, box in enumerate(boxes):
+        ok = isinstance(box, list) and len(box) == 4 and all(_is_number(v) for v in box)
+        ok = ok and 0 <= box[0] < box[2] <= width and 0 <= box[1] < box[3] <= height
+        require(ok, f"boxes[{i}]", box, f"[xmin, ymin, xmax, ymax] with xmin < xmax, ymin < ymax, {inside}", source)
+    rotated = spec.get("rotated_boxes") or []
+    require(isinstance(rotated, list), "rotated_boxes", rotated, "a list of {center, size, angle_deg}", source)
+    for i, box in enumerate(rotated):
+        key = f"rotated_boxes[{i}]"
+        fields = isinstance(box, dict) and set(box) == {"center", "size", "angle_deg"}
+        require(fields, key, box, "{center: [x, y], size: [length, width], angle_deg: a}", source)
+        center, extent = box["center"], box["size"]
+        shape = all(isinstance(v, list) and len(v) == 2 and all(_is_number(u) for u in v) for v in (center, extent))
+        require(shape and _is_number(box["angle_deg"]) and min(extent) > 0, key, box,
+                "center [x, y], size [length, width] > 0 and a number angle_deg", source)
+        corners = _corners(center, extent, math.radians(box["angle_deg"]))
+        ok = all(0 <= x <= width and 0 <= y <= height for x, y in corners)
+        require(ok, key, box, f"a box whose corners lie {inside}", source)
+    return {"border_cells": border, "boxes": boxes, "rotated_boxes": rotated}
+
+
+def _corners(center: list, extent: list, angle: float) -> list[tuple[float, float]]:
+    (x0, y0), (length, width), c, s = center, extent, math.cos(angle), math.sin(angle)
+    half = ((-length / 2, -width / 2), (-length / 2, width / 2), (length / 2, -width / 2), (length / 2, width / 2))
+    return [(x0 + u * c - v * s, y0 + u * s + v * c) for u, v in half]
+
+
+def _load_grid(path: Path, expected: tuple[int, int], source: str) -> Tensor:
+    require(path.is_file(), "grid", str(path), "an existing .npy file (this one does not exist)", source)
     try:
         grid = np.load(path, allow_pickle=False)
     except (ValueError, OSError) as err:
-        raise ValueError(f"map {name!r}: cannot read grid file {str(path)!r} as a .npy array ({err})") from None
-    if grid.shape != expected:
-        raise ValueError(
-            f"map {name!r}: grid file {str(path)!r} has shape {list(grid.shape)}, but size / resolution "
-            f"needs [rows (y), cols (x)] = {list(expected)}"
-        )
+        raise ConfigError("grid", str(path), f"a readable .npy array ({err})", source) from None
+    require(grid.shape == expected, "grid", str(path),
+            f"a grid that fits the map (the file has shape {list(grid.shape)}; size / resolution needs "
+            f"[rows (y), cols (x)] = {list(expected)})", source)
     return torch.from_numpy(np.asarray(grid) != 0)
 
 
 def _rasterise(spec: dict, nx: int, ny: int, resolution: float) -> Tensor:
-    """Occupancy from geometry: a cell is occupied when its centre lies in a box or in the border."""
+    """Occupancy from checked geometry (:func:`_checked_geometry`): a cell is occupied when its centre lies
+    in a box or in the border."""
     xs = (torch.arange(nx, dtype=torch.float64) + 0.5) * resolution
     ys = (torch.arange(ny, dtype=torch.float64) + 0.5) * resolution
     cy, cx = torch.meshgrid(ys, xs, indexing="ij")
     occupancy = torch.zeros(ny, nx, dtype=torch.bool)
-    border = int(spec.get("border_cells") or 0)
+    border = spec["border_cells"]
     if border > 0:
         occupancy[:border] = occupancy[-border:] = True
         occupancy[:, :border] = occupancy[:, -border:] = True
-    for xmin, ymin, xmax, ymax in spec.get("boxes") or []:
+    for xmin, ymin, xmax, ymax in spec["boxes"]:
         occupancy |= (cx >= xmin) & (cx <= xmax) & (cy >= ymin) & (cy <= ymax)
-    for box in spec.get("rotated_boxes") or []:
+    for box in spec["rotated_boxes"]:
         (x0, y0), (length, width) = box["center"], box["size"]
         angle = math.radians(box["angle_deg"])
         # Coordinates of each cell centre in the box frame.

@@ -43,6 +43,13 @@ def world_keys(seed: int, num_worlds: int, device: torch.device | str = "cpu") -
     return mix32(mix32(index + _GOLDEN) ^ base.to(device))
 
 
+def seed_keys(seeds: list[int], purpose: int, device: torch.device | str = "cpu") -> Tensor:
+    """``[len(seeds)]`` 32-bit keys, one per seed, for draws made for ``purpose`` (a small constant that keeps
+    the streams of different users of one seed apart, and apart from the seed's world streams)."""
+    keys = [world_keys(int(seed), 1)[0] for seed in seeds]
+    return mix32(torch.stack(keys) ^ mix32(torch.tensor(purpose * 0x632BE5AB + _GOLDEN) & _MASK32)).to(device)
+
+
 def episode_keys(world_key: Tensor, episode: Tensor) -> Tensor:
     """The key of each world's current episode: one fresh stream per (world, episode)."""
     return mix32(world_key ^ mix32((episode + _GOLDEN) & _MASK32))

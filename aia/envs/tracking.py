@@ -12,6 +12,7 @@ its index and its episode count, so partial resets of some worlds never change w
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -169,20 +170,33 @@ class TargetTrackingEnv(EnvBase):
         self._world_key = rng.world_keys(seed, self.batch_size[0], self.device)
         self._episode.zero_()
 
-    def replay_streams(self, seed: int, worlds: Tensor, episodes: Tensor) -> None:
-        """Give world ``b`` the random stream of world ``worlds[b]`` of an env seeded with ``seed`` after
-        ``episodes[b]`` episodes: its next reset starts that world's episode ``episodes[b] + 1``.
+    def replay_streams(self, seed: int | Sequence[int] | Tensor, worlds: Tensor, episodes: Tensor) -> None:
+        """Give world ``b`` the random stream of world ``worlds[b]`` of an env seeded with ``seed`` (one seed,
+        or one per world) after ``episodes[b]`` episodes: its next reset starts that world's episode
+        ``episodes[b] + 1``.
 
         One batch can so replay the episodes that several resets of a smaller env would meet (the training
-        loop plays several evaluations in one rollout this way). ``worlds`` and ``episodes`` are ``[B]``
-        integer tensors, ``worlds >= 0`` and ``episodes >= 0``.
+        loop plays several evaluations in one rollout this way), or hold the worlds of several differently
+        seeded envs (a population's members). ``worlds`` and ``episodes`` are ``[B]`` integer tensors,
+        ``worlds >= 0`` and ``episodes >= 0``.
         """
         B = self.batch_size[0]
         worlds, episodes = torch.as_tensor(worlds), torch.as_tensor(episodes)
-        for name, value in (("worlds", worlds), ("episodes", episodes)):
+        seeds = torch.as_tensor(seed, dtype=torch.int64).expand(B) if not isinstance(seed, int) else None
+        for name, value in (("worlds", worlds), ("episodes", episodes), ("seed", seeds)):
+            if value is None:
+                continue
             if value.shape != (B,) or value.dtype.is_floating_point or bool((value < 0).any()):
                 raise ValueError(f"{name} must be {B} non-negative integers (one per world), got {value.tolist()}")
-        self._world_key = rng.world_keys(int(seed), int(worlds.max()) + 1, self.device)[worlds.to(self.device)]
+        if seeds is None:
+            keys = rng.world_keys(int(seed), int(worlds.max()) + 1, self.device)[worlds.to(self.device)]
+        else:
+            keys = torch.empty(B, dtype=torch.int64, device=self.device)
+            for value in seeds.unique().tolist():
+                mask = seeds == value
+                keys[mask.to(self.device)] = rng.world_keys(value, int(worlds.max()) + 1, self.device)[
+                    worlds[mask].to(self.device)]
+        self._world_key = keys
         self._episode.copy_(episodes)
 
     # ------------------------------------------------------------------ reset

@@ -8,7 +8,8 @@ What goes where
       (:mod:`aia.logging.scenes`, written by :class:`aia.logging.SceneRecorder`);
     * metadata ``run`` (package versions, git commit, host, start time, and what the caller adds: seed,
       algorithm, env) at creation; ``log_hparams`` adds metadata ``config`` (the resolved config, flattened
-      to dotted keys) and the attachment ``config.yaml``.
+      to dotted keys) and the attachment ``config.yaml``; a run that ends early (an exception, Ctrl-C, SIGTERM)
+      adds metadata ``status`` (``failed`` or ``stopped``, and the reason) when it closes its log.
     One time base per file: the wall-clock time of the call is the message's log time (kept
     non-decreasing); the frame counter, and for scenes the simulation time, live in the payload.
 
@@ -37,6 +38,7 @@ import math
 import platform
 import socket
 import subprocess
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
@@ -53,10 +55,12 @@ from PIL import Image
 from torch import Tensor
 from torchrl.record.loggers import Logger
 
+from aia.errors import one_line
 from aia.logging import schemas
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 LOG_TOPIC = "/log"
+STATUS_METADATA = "status"  # written only by a run that ended early: {"status": "failed" | "stopped", "reason"}
 _PACKAGES = ("aia", "torch", "torchrl", "tensordict", "hydra-core", "mcap", "numpy")
 
 
@@ -151,6 +155,7 @@ class MCAPLogger(Logger):
         self._options = (Path(log_dir) / file_name, compression, chunk_size, flush_interval_s)
         self._run_metadata = dict(run_metadata or {})
         self._scalar_channels: dict[str, int] = {}
+        self._status_written = False
         super().__init__(exp_name=exp_name, log_dir=str(log_dir))
 
     def _create_experiment(self) -> MCAPRun:
@@ -172,6 +177,24 @@ class MCAPLogger(Logger):
         number = b"%r" % value if math.isfinite(value) else b"null"
         data = b'{"frame":%d,"value":%s}' % (step, number) if step is not None else b'{"value":%s}' % number
         self.experiment.write(channel, data, self.experiment.now())
+
+    def mark_failed(self, reason: str, status: str = "failed") -> None:
+        """Record why the run ended early: metadata ``status`` with ``status`` (``failed``, or ``stopped`` for an
+        interrupted run) and a one-line ``reason``; ``aia-log summary`` shows it. Flushed at once."""
+        self.experiment.metadata(STATUS_METADATA, {"status": status, "reason": one_line(reason)})
+        self.experiment.flush()
+        self._status_written = True
+
+    def shutdown(self, timeout: float | None = None) -> None:
+        """Flush, write the summary and the footer, close the file (idempotent). Called while an exception
+        propagates (``finally: logger.close()``) on a run not yet marked, it first marks the run: ``stopped``
+        for Ctrl-C or SIGTERM (``KeyboardInterrupt``, ``SystemExit``), ``failed`` with the error otherwise."""
+        error = sys.exc_info()[1]
+        if error is not None and not self._service_shutdown and not self._status_written:
+            stopped = isinstance(error, (KeyboardInterrupt, SystemExit))
+            self.mark_failed(f"{type(error).__name__}: {error}" if str(error) else type(error).__name__,
+                             status="stopped" if stopped else "failed")
+        super().shutdown(timeout)
 
     def log_hparams(self, cfg: DictConfig | Mapping[str, Any]) -> None:
         """The resolved config as metadata ``config`` (dotted keys) and as the attachment ``config.yaml``."""

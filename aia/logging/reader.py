@@ -62,6 +62,13 @@ class RunLog:
     problem: str | None = None     # why reading stopped before the footer
     _config: dict[str, Any] | None = field(default=None, init=False, repr=False)
 
+    @property
+    def failure(self) -> str | None:
+        """``"failed: <reason>"`` or ``"stopped: <reason>"`` for a run that ended early (metadata ``status``),
+        else None."""
+        status = self.metadata.get("status")
+        return f"{status.get('status', 'failed')}: {status.get('reason', '?')}" if status else None
+
     def topic_counts(self) -> dict[str, tuple[str, int]]:
         """``topic -> (schema, message count)`` in order of first appearance."""
         counts = Counter(m.topic for m in self.messages)

@@ -349,16 +349,18 @@ class ADFQLoss(LossModule):
         batch_size = tensordict.batch_size
         in_keys = self.value_network.in_keys
         with torch.no_grad():
-            both = torch.stack([tensordict.select(*in_keys), tensordict.get("next").select(*in_keys)], dim=0)
+            # s and s' side by side in a last batch dim (a leading dim would break a member-stacked network)
+            both = torch.stack([tensordict.select(*in_keys), tensordict.get("next").select(*in_keys)],
+                               dim=tensordict.batch_dims)
             with self.target_value_network_params.to_module(self.value_network, preserve_module_state=False):
                 both = self.value_network(both)
             means = both.get(keys.action_value)
             log_sds = self._clip_log_sd(both.get(keys.action_log_sd))
             action = tensordict.get(keys.action)
-            mean = self._select_action(means[0], action)
-            var = torch.exp(2.0 * self._select_action(log_sds[0], action))
-            next_mean = means[1]
-            next_var = torch.exp(2.0 * log_sds[1])
+            mean = self._select_action(means[..., 0, :], action)
+            var = torch.exp(2.0 * self._select_action(log_sds[..., 0, :], action))
+            next_mean = means[..., 1, :]
+            next_var = torch.exp(2.0 * log_sds[..., 1, :])
             reward = self._per_sample(tensordict.get(("next", keys.reward)), batch_size)
             terminated = self._per_sample(tensordict.get(("next", keys.terminated)), batch_size)
             return adfq_posterior(

@@ -1,28 +1,28 @@
 """Learned policies' building blocks: Q-networks, the Q-value actor, exploration modules and
-the evaluation snapshots."""
+the members' stacked networks, the population policy and the evaluation snapshots."""
 
-from aia.modules.acting import ExploringQPolicy
 from aia.modules.exploration import (
     ALGORITHMS,
     EXPLORATIONS,
     EpsilonGreedy,
     LinearEpsilon,
-    ThompsonSampling,
     check_exploration,
     exploring,
 )
+from aia.modules.population_acting import PopulationQPolicy
 from aia.modules.q_networks import ADFQNetwork, make_q_network, make_qvalue_actor
 from aia.modules.snapshots import SnapshotPolicy, parameter_snapshot
+from aia.modules.stacked import StackedQNetwork
 
 __all__ = [
     "ALGORITHMS",
     "EXPLORATIONS",
     "ADFQNetwork",
     "EpsilonGreedy",
-    "ExploringQPolicy",
     "LinearEpsilon",
+    "PopulationQPolicy",
     "SnapshotPolicy",
-    "ThompsonSampling",
+    "StackedQNetwork",
     "check_exploration",
     "exploring",
     "make_q_network",

@@ -1,11 +1,12 @@
-"""Exploration for the Q-value policies: a linear epsilon schedule, batched epsilon-greedy and Thompson sampling.
+"""Exploration for the Q-value policies: a linear epsilon schedule, batched epsilon-greedy and the config check.
 
-Both modules follow TorchRL's ``EGreedyModule`` convention: they come after the greedy actor in a
-``TensorDictSequential``, overwrite ``action``, and act only when the exploration type is ``RANDOM`` or unset
-(``None``, the default, e.g. inside ``env.rollout``). Under ``set_exploration_type(DETERMINISTIC)`` they
-leave the greedy action untouched. Each owns a ``torch.Generator`` seeded at construction, so a run's
+:class:`EpsilonGreedy` follows TorchRL's ``EGreedyModule`` convention: it comes after the greedy actor in a
+``TensorDictSequential``, overwrites ``action``, and acts only when the exploration type is ``RANDOM`` or unset
+(``None``, the default, e.g. inside ``env.rollout``). Under ``set_exploration_type(DETERMINISTIC)`` it
+leaves the greedy action untouched. It owns a ``torch.Generator`` seeded at construction, so its
 exploration noise is reproducible and independent of the global torch RNG. ``chosen_action_value`` written
 by ``QValueModule`` still refers to the greedy action afterwards (as with TorchRL's ``EGreedyModule``).
+ADFQ's Thompson sampling is done by :class:`~aia.modules.PopulationQPolicy`.
 """
 
 from __future__ import annotations
@@ -86,33 +87,6 @@ class EpsilonGreedy(TensorDictModuleBase):
         explore = torch.rand(action.shape, generator=gen, device=gen.device) < self.epsilon
         random = torch.randint(0, self.num_actions, action.shape, generator=gen, device=gen.device)
         return torch.where(explore.to(action.device), random.to(action), action)
-
-
-class ThompsonSampling(TensorDictModuleBase):
-    """ADFQ Thompson sampling: ``action = argmax_a q_a`` with one ``q_a ~ N(mean_a, sd_a^2)`` per action.
-
-    Reads ``action_value`` (means) and ``action_log_sd`` as written by the ADFQ actor, writes ``action``
-    (int64 index) and the sampled values under ``action_sample``.
-    """
-
-    def __init__(self, seed: int = 0, device: torch.device | str = "cpu") -> None:
-        super().__init__()
-        self.in_keys = ["action_value", "action_log_sd"]
-        self.out_keys = ["action", "action_sample"]
-        self.generator = torch.Generator(device=device).manual_seed(seed)
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Sample the action values and write their argmax (only when exploring)."""
-        if not exploring():
-            return tensordict
-        sample = self.sample(tensordict.get("action_value"), tensordict.get("action_log_sd"))
-        tensordict.set("action_sample", sample)
-        return tensordict.set("action", sample.argmax(-1))
-
-    def sample(self, mean: Tensor, log_sd: Tensor) -> Tensor:
-        """One draw ``q_a ~ N(mean_a, exp(log_sd_a)^2)`` of every action value (its argmax is the action)."""
-        noise = torch.randn(mean.shape, generator=self.generator, device=self.generator.device, dtype=mean.dtype)
-        return mean + log_sd.exp() * noise.to(mean.device)
 
 
 def check_exploration(algo: str, exploration: str) -> None:

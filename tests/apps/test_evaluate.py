@@ -11,7 +11,7 @@ from hydra import compose, initialize_config_module
 
 from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner
 from aia.logging import read_run
-from aia.train import train
+from aia.training import train
 
 
 @pytest.fixture(scope="module")
@@ -87,4 +87,4 @@ def test_app_runs_arvi_and_names_an_unknown_policy(tmp_path):
     assert written["policy"] == "arvi" and written["belief_error"] > 0
     result = subprocess.run([*command[:3], "policy=mcts", f"hydra.run.dir={tmp_path}"], capture_output=True,
                             text=True, timeout=120)
-    assert result.returncode != 0 and "policy='mcts' is not one of ['checkpoint', 'arvi']" in result.stderr
+    assert result.returncode != 0 and "policy='mcts': expected one of ['checkpoint', 'arvi']" in result.stderr

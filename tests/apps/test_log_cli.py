@@ -165,3 +165,26 @@ def test_action_view_is_the_padded_square_around_the_episode():
     # the padded box is x in [7, 17], y in [17, 25]: a square of side 10 around (12, 21)
     assert action_view(points, margin=3.0, limit=(100.0, 100.0)) == pytest.approx((7.0, 16.0, 17.0, 26.0))
     assert action_view(points, margin=60.0, limit=(100.0, 100.0)) is None  # not smaller than the map
+
+
+def test_plot_refuses_a_group_by_key_that_no_run_has(tmp_path, capsys):
+    _fake_run(tmp_path / "m/0", "adfq", 0, [1.0, 2.0])
+    assert main(["plot", str(tmp_path / "m"), "--group-by", "algoo", "--out", str(tmp_path / "c.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--group-by 'algoo'" in err
+    assert "available: algo, algo.name, env.map, env.max_steps, seed" in err
+    assert not (tmp_path / "c.png").exists()
+
+
+def test_summary_shows_a_failed_start(tmp_path, capsys):
+    logger = MCAPLogger("exp", tmp_path)
+    logger.log_hparams({"algo": {"name": "dqn"}})
+    with pytest.raises(RuntimeError):
+        try:
+            raise RuntimeError("the env could not be built")
+        finally:
+            logger.close()
+    assert main(["summary", str(tmp_path / "run.mcap")]) == 0
+    captured = capsys.readouterr()
+    assert "[failed: RuntimeError: the env could not be built]" in captured.out
+    assert "failed: RuntimeError" in captured.err  # the warning of a run that is not complete

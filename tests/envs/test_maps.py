@@ -7,7 +7,9 @@ import pytest
 import torch
 import yaml
 
+from aia.envs.config import TrackingConfig
 from aia.envs.maps import GridMap, available_maps, build_map, load_map
+from aia.errors import ConfigError
 
 
 def _occupied(m: GridMap, x: float, y: float) -> bool:
@@ -216,3 +218,47 @@ def test_custom_rotated_box():
     # Centres (1.75, 1.75) and (2.25, 2.25) are at u = -+0.354 and v = 0; (1.25, 1.25) at |u| = 1.06 > 0.75.
     assert int(m.occupancy.sum()) == 2
     assert m.occupancy[3, 3] and m.occupancy[4, 4]
+
+
+# ------------------------------------------------------- one test per validation rule
+_BASE = {"size": [10.0, 8.0], "resolution": 0.5}
+RULES = [
+    ("size", {"size": [10.0, 0.0]}, "size=[10.0, 0.0]", "both > 0"),
+    ("resolution", {"resolution": -0.5}, "resolution=-0.5", "> 0"),
+    ("whole cells", {"resolution": 0.3}, "size=[10.0, 8.0]", "whole number"),
+    ("border", {"border_cells": 8}, "border_cells=8", "<= 7"),
+    ("box outside", {"boxes": [[20.0, 20.0, 25.0, 25.0]]}, "boxes[0]=[20.0, 20.0, 25.0, 25.0]", "[0, 10.0] x [0, 8.0]"),
+    ("box across the edge", {"boxes": [[8.0, 1.0, 11.0, 2.0]]}, "boxes[0]=[8.0, 1.0, 11.0, 2.0]", "inside the map"),
+    ("box inverted", {"boxes": [[3.0, 1.0, 2.0, 2.0]]}, "boxes[0]=[3.0, 1.0, 2.0, 2.0]", "xmin < xmax"),
+    ("rotated box outside", {"rotated_boxes": [{"center": [9.5, 4.0], "size": [3.0, 1.0], "angle_deg": 0.0}]},
+     "rotated_boxes[0]=", "corners lie inside the map"),
+    ("rotated box size", {"rotated_boxes": [{"center": [5.0, 4.0], "size": [0.0, 1.0], "angle_deg": 0.0}]},
+     "rotated_boxes[0]=", "size [length, width] > 0"),
+    ("start outside", {"robot_start": [11.0, 1.0]}, "robot_start=[11.0, 1.0]", "inside [0, 10.0] x [0, 8.0]"),
+    ("start occupied", {"robot_start": [2.0, 2.0], "boxes": [[1.0, 1.0, 3.0, 3.0]]}, "robot_start=[2.0, 2.0]",
+     "free cell"),
+    ("no free cell", {"boxes": [[0.0, 0.0, 10.0, 8.0]]}, "robot_start=None", "free cell"),
+]
+
+
+@pytest.mark.parametrize("rule, change, named, allowed", RULES, ids=[r[0] for r in RULES])
+def test_each_map_rule_names_the_file_the_field_and_the_allowed_range(tmp_path, rule, change, named, allowed):
+    path = _write_yaml(tmp_path / "room.yaml", {**_BASE, **change})
+    with pytest.raises(ConfigError) as info:
+        load_map(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and named in message and allowed in message and "\n" not in message
+
+
+def test_a_start_within_the_collision_margin_of_the_bounds_is_refused(tmp_path):
+    path = _write_yaml(tmp_path / "edge.yaml", {**_BASE, "robot_start": [0.2, 4.0]})
+    load_map(path)  # inside the map: the map itself is valid
+    with pytest.raises(ConfigError, match=r"edge.yaml: robot_start=\[0.2, 4.0\].*env.margin=0.5"):
+        TrackingConfig(map=path)
+
+
+def test_a_malformed_yaml_file_is_named(tmp_path):
+    path = tmp_path / "broken.yaml"
+    path.write_text("size: [10.0, 8.0\nresolution: 0.5\n")
+    with pytest.raises(ConfigError, match=rf"env.map='{path}': expected a map file that parses as YAML \(line"):
+        load_map(str(path))

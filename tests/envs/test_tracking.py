@@ -255,9 +255,9 @@ def test_compiled_step_matches_eager():
 
 # ---------------------------------------------------------------- errors
 def test_unknown_setting_and_map_errors():
-    with pytest.raises(ValueError, match="unknown env setting 'nowhere'.*empty1"):
+    with pytest.raises(ValueError, match="env='nowhere'.*empty1"):
         make_env("nowhere")
-    with pytest.raises(ValueError, match="unknown map 'atlantis'.*obstacles4"):
+    with pytest.raises(ValueError, match="env.map='atlantis'.*obstacles4"):
         make_env("empty1", overrides=["map=atlantis"])
 
 

@@ -133,3 +133,40 @@ def test_time_based_flush_happens_while_logging(tmp_path):
 def test_flatten_nested_config():
     assert flatten({"a": {"b": 1, "c": {"d": None}}, "e": [1, 2], "f": {}}) == {
         "a.b": "1", "a.c.d": "null", "e": "[1, 2]", "f": "{}"}
+
+
+def test_a_log_closed_by_an_exception_says_failed_and_why(tmp_path):
+    logger = MCAPLogger("exp", tmp_path)
+    with pytest.raises(ValueError):
+        try:
+            raise ValueError("bad start\nsecond line")
+        finally:
+            logger.close()
+    run = read_run(tmp_path / "run.mcap")
+    assert run.complete and run.failure == "failed: ValueError: bad start second line"
+
+
+def test_an_interrupted_run_says_stopped_and_a_finished_one_has_no_status(tmp_path):
+    logger = MCAPLogger("exp", tmp_path / "a")
+    with pytest.raises(KeyboardInterrupt):
+        try:
+            raise KeyboardInterrupt
+        finally:
+            logger.close()
+    assert read_run(tmp_path / "a" / "run.mcap").failure == "stopped: KeyboardInterrupt"
+    logger = MCAPLogger("exp", tmp_path / "b")
+    logger.log_scalar("eval/score", 1.0, step=1)
+    logger.close()
+    run = read_run(tmp_path / "b" / "run.mcap")
+    assert run.failure is None and "status" not in run.metadata
+
+
+def test_mark_failed_is_explicit_and_the_first_mark_stays(tmp_path):
+    logger = MCAPLogger("exp", tmp_path)
+    logger.mark_failed("the env could not be built")
+    with pytest.raises(RuntimeError):
+        try:
+            raise RuntimeError("later")
+        finally:
+            logger.close()
+    assert read_run(tmp_path / "run.mcap").failure == "failed: the env could not be built"

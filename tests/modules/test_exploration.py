@@ -1,4 +1,7 @@
-"""Exploration: the linear epsilon schedule, batched epsilon-greedy, Thompson sampling and the config check."""
+"""Exploration: the linear epsilon schedule, batched epsilon-greedy and the config check.
+
+(Thompson sampling is tested with :class:`~aia.modules.PopulationQPolicy`, which does it.)
+"""
 
 from __future__ import annotations
 
@@ -9,7 +12,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from aia.modules import EpsilonGreedy, LinearEpsilon, ThompsonSampling, check_exploration
+from aia.modules import EpsilonGreedy, LinearEpsilon, check_exploration
 
 CHI2_11_DOF_P001 = 31.26  # 99.9% quantile of chi-square with 11 degrees of freedom
 
@@ -88,48 +91,11 @@ def test_epsilon_greedy_is_seeded_and_batch_shape_agnostic():
 
 def test_exploration_is_off_under_deterministic_exploration_type():
     egreedy = EpsilonGreedy(12, seed=0)
-    thompson = ThompsonSampling(seed=0)
     td = _greedy((1000,))
-    td["action_value"] = torch.zeros(1000, 12)
-    td["action_log_sd"] = torch.zeros(1000, 12)
     greedy = td["action"].clone()
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        assert torch.equal(thompson(egreedy(td))["action"], greedy)
-    assert td.get("action_sample", None) is None
-
-
-def _values(mean: torch.Tensor, log_sd: torch.Tensor) -> TensorDict:
-    return TensorDict({"action_value": mean, "action_log_sd": log_sd}, batch_size=mean.shape[:-1])
-
-
-def test_thompson_with_tiny_sds_is_greedy():
-    mean = torch.randn(1000, 12, generator=torch.Generator().manual_seed(0))
-    td = ThompsonSampling(seed=0)(_values(mean, torch.full((1000, 12), math.log(1e-5))))
-    assert torch.equal(td["action"], mean.argmax(-1))
-    assert td["action"].dtype == torch.int64
-    assert td["action_sample"].shape == (1000, 12)
-
-
-def test_thompson_with_equal_beliefs_is_uniform():
-    td = ThompsonSampling(seed=0)(_values(torch.ones(120_000, 12), torch.full((120_000, 12), math.log(10.0))))
-    assert _chi2_uniform(td["action"]) < CHI2_11_DOF_P001
-
-
-def test_thompson_choice_probability_matches_the_normal_cdf():
-    n = 100_000
-    mean = torch.tensor([0.0, 1.0]).expand(n, 2)
-    td = ThompsonSampling(seed=0)(_values(mean, torch.zeros(n, 2)))
-    # P(q1 > q0) with q1 - q0 ~ N(1, 2) is Phi(1 / sqrt(2)) ~ 0.760; binomial sd ~ 0.0014.
-    expected = 0.5 * (1 + math.erf(0.5))
-    assert math.isclose(expected, 0.7602, abs_tol=1e-4)
-    assert abs(td["action"].double().mean().item() - expected) < 0.006
-
-
-def test_thompson_is_seeded():
-    def draw(seed: int) -> torch.Tensor:
-        return ThompsonSampling(seed=seed)(_values(torch.zeros(500, 12), torch.zeros(500, 12)))["action"]
-
-    assert torch.equal(draw(3), draw(3)) and not torch.equal(draw(3), draw(4))
+        assert torch.equal(egreedy(td)["action"], greedy)
+    assert not torch.equal(egreedy(td.clone())["action"], greedy)  # epsilon 1 does explore otherwise
 
 
 def test_check_exploration():

@@ -9,7 +9,14 @@ import torch
 from tensordict.nn import TensorDictSequential
 
 from aia.envs import make_env
-from aia.modules import ADFQNetwork, EpsilonGreedy, ThompsonSampling, make_q_network, make_qvalue_actor
+from aia.modules import (
+    ADFQNetwork,
+    EpsilonGreedy,
+    PopulationQPolicy,
+    StackedQNetwork,
+    make_q_network,
+    make_qvalue_actor,
+)
 
 
 @pytest.mark.parametrize("obs_dim", [8, 20])
@@ -104,8 +111,10 @@ def test_rollout_with_actor(kind):
         actor = make_qvalue_actor(make_q_network(obs_dim, 12), env.action_spec)
     if kind.endswith("egreedy"):
         actor = TensorDictSequential(actor, EpsilonGreedy(12, seed=0))
-    elif kind.endswith("thompson"):
-        actor = TensorDictSequential(actor, ThompsonSampling(seed=0))
+    elif kind.endswith("thompson"):  # a population of one ADFQ learner, Thompson sampling on its 4 worlds
+        actor = PopulationQPolicy(StackedQNetwork.stack([ADFQNetwork(obs_dim, 12)]), 12, worlds_per_member=4,
+                                  seeds=[0], thompson=True, eps_init=[0.0], eps_end=[0.0], annealing_frames=[1],
+                                  warmup_frames=0)
     with torch.no_grad():
         traj = env.rollout(20, policy=actor, break_when_any_done=False)
     assert traj.batch_size == (4, 20)

@@ -1,86 +1,112 @@
-"""SnapshotPolicy: each group of worlds acts like the single-snapshot epsilon-greedy policy on its own."""
+"""SnapshotPolicy: world group (g, k) acts as snapshot g's member k would alone, with its own noise."""
 
 from __future__ import annotations
-
-import copy
 
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictSequential
-from torchrl.data import Categorical
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from aia.modules import (
-    ADFQNetwork,
-    EpsilonGreedy,
-    SnapshotPolicy,
-    make_q_network,
-    make_qvalue_actor,
-    parameter_snapshot,
-)
+from aia.modules import ADFQNetwork, SnapshotPolicy, StackedQNetwork, make_q_network, parameter_snapshot
+
+A = 12
 
 
-def _perturbed(network: torch.nn.Module, seed: int) -> torch.nn.Module:
-    other = copy.deepcopy(network)
-    generator = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for param in other.parameters():
-            param.add_(torch.randn(param.shape, generator=generator))
-    return other
+def _stacked(members: int, adfq: bool = False, seed: int = 0) -> StackedQNetwork:
+    networks = []
+    for k in range(members):
+        torch.manual_seed(seed + k)
+        network = ADFQNetwork(8, A, (16,)) if adfq else make_q_network(8, A, (16, 16))
+        if adfq:
+            with torch.no_grad():  # break the initial exact ties
+                network.mlp[-1].weight.normal_()
+        networks.append(network)
+    return StackedQNetwork.stack(networks)
 
 
-def test_each_group_acts_like_its_snapshot_with_epsilon_greedy_alone():
-    torch.manual_seed(0)
-    networks = [make_q_network(8, 12, (16, 16))]
-    networks += [_perturbed(networks[0], seed) for seed in (1, 2)]
-    policy = SnapshotPolicy(networks[0], 12, epsilon=0.3)
-    policy.load([parameter_snapshot(n) for n in networks], seeds=[10, 11, 12])
-    alone = [TensorDictSequential(make_qvalue_actor(n, Categorical(12)), EpsilonGreedy(12, 0.3, 0.3, 1, seed=s))
-             for n, s in zip(networks, (10, 11, 12), strict=True)]
+def _snapshots(network: StackedQNetwork, count: int) -> list[dict[str, torch.Tensor]]:
+    """``count`` snapshots: the network's parameters, then perturbed copies."""
+    base = parameter_snapshot(network)
+    generator = torch.Generator().manual_seed(99)
+    return [base] + [{name: p + torch.randn(p.shape, generator=generator) for name, p in base.items()}
+                     for _ in range(count - 1)]
+
+
+def _member(snapshot: dict[str, torch.Tensor], k: int) -> dict[str, torch.Tensor]:
+    """Member ``k`` of a snapshot, as the snapshot of a one-member stacked network."""
+    return {name: p[k:k + 1].clone() for name, p in snapshot.items()}
+
+
+def _act(policy: SnapshotPolicy, obs: torch.Tensor) -> torch.Tensor:
+    return policy(TensorDict(observation=obs, batch_size=obs.shape[:1]))["action"]
+
+
+def test_each_group_acts_as_its_snapshot_and_member_alone():
+    G, P, E = 3, 2, 4
+    network = _stacked(P)
+    snapshots = _snapshots(network, G)
+    seeds = [[10, 11], [12, 13], [14, 15]]
+    policy = SnapshotPolicy(network, A, epsilon=0.3)
+    policy.load(snapshots, seeds)
+    alone = {}
+    for g in range(G):
+        for k in range(P):
+            alone[g, k] = SnapshotPolicy(_stacked(1, seed=50), A, epsilon=0.3)
+            alone[g, k].load([_member(snapshots[g], k)], [[seeds[g][k]]])
     explored = 0
-    for step in range(20):
-        obs = torch.randn(3, 4, 8, generator=torch.Generator().manual_seed(step))
-        action = policy(TensorDict(observation=obs.reshape(12, 8), batch_size=[12]))["action"]
-        assert action.dtype == torch.int64 and action.shape == (12,)
-        for k in range(3):
-            expected = alone[k](TensorDict(observation=obs[k], batch_size=[4]))["action"]
-            assert torch.equal(action[4 * k:4 * (k + 1)], expected)
-            explored += int((expected != networks[k](obs[k]).argmax(-1)).sum())
-    assert explored > 0  # the random draws did replace greedy actions
+    for step in range(15):
+        obs = torch.randn(G, P, E, 8, generator=torch.Generator().manual_seed(step))
+        action = _act(policy, obs.reshape(G * P * E, 8)).reshape(G, P, E)
+        for (g, k), solo in alone.items():
+            expected = _act(solo, obs[g, k])
+            assert torch.equal(action[g, k], expected), (step, g, k)
+            greedy = torch.func.functional_call(network, snapshots[g], (obs[g],))[k].argmax(-1)
+            explored += int((expected != greedy).sum())
+    assert int(policy.steps) == 15
+    assert 0 < explored < G * P * E * 15  # the random draws replaced some greedy actions, not all
 
 
-def test_greedy_without_exploration_and_on_adfq_means():
-    torch.manual_seed(1)
-    network = ADFQNetwork(8, 12, (16,))
-    with torch.no_grad():
-        network.mlp[-1].weight.normal_()  # break the initial exact ties
-    other = _perturbed(network, 3)
-    policy = SnapshotPolicy(network, 12, epsilon=1.0)
-    policy.load([parameter_snapshot(network), parameter_snapshot(other)], seeds=[0, 1])
-    obs = torch.randn(6, 8)
+def test_greedy_on_adfq_means_without_exploration():
+    G, P, E = 2, 2, 3
+    network = _stacked(P, adfq=True)
+    snapshots = _snapshots(network, G)
+    policy = SnapshotPolicy(network, A, epsilon=1.0)
+    policy.load(snapshots, [[0, 1], [2, 3]])
+    obs = torch.randn(G, P, E, 8, generator=torch.Generator().manual_seed(5))
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        action = policy(TensorDict(observation=obs, batch_size=[6]))["action"]
-    assert torch.equal(action[:3], network(obs[:3])[0].argmax(-1))
-    assert torch.equal(action[3:], other(obs[3:])[0].argmax(-1))
-    assert not torch.equal(network(obs)[0].argmax(-1), other(obs)[0].argmax(-1))  # the snapshots matter
+        action = _act(policy, obs.reshape(-1, 8)).reshape(G, P, E)
+    assert int(policy.steps) == 0
+    means = [torch.func.functional_call(network, snapshot, (obs[g],))[0] for g, snapshot in enumerate(snapshots)]
+    for g in range(G):
+        assert torch.equal(action[g], means[g].argmax(-1))
+    assert not torch.equal(means[0].argmax(-1), means[1].argmax(-1))  # the snapshots matter
+    assert not torch.equal(_act(policy, obs.reshape(-1, 8)).reshape(G, P, E), action)  # epsilon 1 explores
 
 
 def test_compiled_snapshot_policy_chooses_the_eager_actions():
-    torch.manual_seed(2)
-    network = make_q_network(8, 12, (16, 16))
-    snapshots = [parameter_snapshot(network), parameter_snapshot(_perturbed(network, 5))]
-    eager, compiled = SnapshotPolicy(network, 12, 0.3), SnapshotPolicy(network, 12, 0.3, compile=True)
-    eager.load(snapshots, seeds=[1, 2])
-    compiled.load(snapshots, seeds=[1, 2])
-    for step in range(5):
+    network = _stacked(2, seed=2)
+    snapshots = _snapshots(network, 2)
+    eager, compiled = SnapshotPolicy(network, A, 0.3), SnapshotPolicy(network, A, 0.3, compile=True)
+    eager.load(snapshots, [[1, 2], [3, 4]])
+    compiled.load(snapshots, [[1, 2], [3, 4]])
+    for step in range(4):
         obs = torch.randn(8, 8, generator=torch.Generator().manual_seed(step))
-        assert torch.equal(compiled(TensorDict(observation=obs, batch_size=[8]))["action"],
-                           eager(TensorDict(observation=obs, batch_size=[8]))["action"])
+        assert torch.equal(_act(compiled, obs), _act(eager, obs))
+
+
+def test_load_restarts_the_noise_streams():
+    network = _stacked(1)
+    policy = SnapshotPolicy(network, A, epsilon=0.5)
+    obs = torch.randn(200, 8, generator=torch.Generator().manual_seed(0))
+    policy.load(_snapshots(network, 1), [[7]])
+    first = [_act(policy, obs) for _ in range(3)]
+    assert not torch.equal(first[0], first[1])
+    policy.load(_snapshots(network, 1), [[7]])
+    assert all(torch.equal(_act(policy, obs), action) for action in first)
 
 
 def test_snapshots_are_copies():
-    network = make_q_network(4, 3, (8,))
+    network = _stacked(2)
     snapshot = parameter_snapshot(network)
     with torch.no_grad():
         for param in network.parameters():
@@ -89,14 +115,19 @@ def test_snapshots_are_copies():
 
 
 def test_bad_use_is_named():
-    network = make_q_network(4, 3, (8,))
+    network = _stacked(2)
     with pytest.raises(ValueError, match=r"epsilon=1.5 must lie in \[0, 1\]"):
-        SnapshotPolicy(network, 3, epsilon=1.5)
-    policy = SnapshotPolicy(network, 3, epsilon=0.1)
+        SnapshotPolicy(network, A, epsilon=1.5)
+    policy = SnapshotPolicy(network, A, epsilon=0.1)
     with pytest.raises(RuntimeError, match="call load"):
-        policy(TensorDict(observation=torch.zeros(2, 4), batch_size=[2]))
-    with pytest.raises(ValueError, match="one seed per snapshot"):
-        policy.load([parameter_snapshot(network)], seeds=[1, 2])
-    policy.load([parameter_snapshot(network)] * 2, seeds=[1, 2])
-    with pytest.raises(ValueError, match="3 worlds does not split into 2 equal groups"):
-        policy(TensorDict(observation=torch.zeros(3, 4), batch_size=[3]))
+        _act(policy, torch.zeros(4, 8))
+    snapshot = parameter_snapshot(network)
+    with pytest.raises(ValueError, match=r"need 2 seeds per snapshot.*1 snapshots and seeds \[\[1, 2, 3\]\]"):
+        policy.load([snapshot], [[1, 2, 3]])
+    with pytest.raises(ValueError, match="2 snapshots and seeds"):
+        policy.load([snapshot, snapshot], [[1, 2]])
+    with pytest.raises(ValueError, match="at least one snapshot"):
+        policy.load([], [])
+    policy.load([snapshot] * 2, [[1, 2], [3, 4]])
+    with pytest.raises(ValueError, match="6 worlds does not split into 4 equal groups"):
+        _act(policy, torch.zeros(6, 8))

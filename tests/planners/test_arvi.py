@@ -11,18 +11,8 @@ from torchrl.envs import StepCounter
 from aia.envs import belief, make_env
 from aia.envs.dynamics import se2_step
 from aia.evaluation import episode_scores, run_episodes
-from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy, arvi, to_arvi_config
+from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy, model, pruning, search, to_arvi_config
 from aia.policies import RandomPolicy
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Planning is a chain of small tensor ops: with a second intra-op thread on a busy 2-core machine, every
-    batched Cholesky waits for the other core (docs/planner.md)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def _config(**overrides) -> ARVIConfig:
@@ -98,9 +88,9 @@ def test_skipped_passes_change_nothing():
     env = make_env("empty1", transforms=False)
     pose, mean, cov = _scene()
     planner = ARVIPlanner(env, _config(max_passes=27))
-    search = arvi._Search(planner, pose.double(), mean.double(), cov.double())
-    search._next_pass = lambda k: k + 1  # the plain schedule: every pass runs
-    plain = search.run()
+    schedule = search._Search(planner, pose.double(), mean.double(), cov.double())
+    schedule._next_pass = lambda k: k + 1  # the plain schedule: every pass runs
+    plain = schedule.run()
     fast = planner.plan(pose, mean, cov)
     assert torch.equal(plain.actions, fast.actions) and torch.equal(plain.nodes, fast.nodes)
     assert plain.cost.item() == fast.cost.item() and plain.delta == fast.delta
@@ -110,7 +100,7 @@ def test_skipped_passes_change_nothing():
 def test_covariance_steps_equal_the_env_filter():
     """Same poses, same visibility: the planner's covariance step is the env's EKF covariance (det cap on)."""
     env = make_env("obstacles1", batch_size=64, seed=2, transforms=False, overrides=["dtype=float64"])
-    model = arvi.TrackingModel.from_env(env)
+    tracking = model.TrackingModel.from_env(env)
     td = env.reset()
     random = RandomPolicy(12, seed=2)
     seen = torch.zeros(0, dtype=torch.bool)
@@ -118,9 +108,12 @@ def test_covariance_steps_equal_the_env_filter():
         cov, mean = td["belief_cov"], td["belief_mean"]
         td = env.step(random(td))["next"]
         predicted_xy = (mean @ env.transition.T)[..., :2]
-        step = arvi.update_visible(model, arvi.predict_cov(model, cov), td["robot_pose"], predicted_xy, td["observed"])
+        predicted, logdet = model.predict_cov(tracking, cov, belief.logdet(cov))
+        step, step_logdet = model.update_visible(tracking, predicted, logdet, td["robot_pose"], predicted_xy,
+                                                 td["observed"])
         torch.testing.assert_close(step, td["belief_cov"], rtol=1e-12, atol=1e-12)
-        visible = arvi.visible_targets(model, td["robot_pose"], td["target_state"][..., :2])
+        assert torch.equal(step_logdet, belief.logdet(step))  # the log dets the tree keeps are the covariances'
+        visible = model.visible_targets(tracking, td["robot_pose"], td["target_state"][..., :2])
         assert torch.equal(visible, td["observed"])
         seen = torch.cat((seen, td["observed"].flatten()))
     assert 0.05 < seen.float().mean() < 0.95  # both branches were exercised
@@ -128,14 +121,16 @@ def test_covariance_steps_equal_the_env_filter():
 
 def test_det_cap_keeps_an_unseen_covariance():
     env = make_env("empty1", transforms=False)  # det cap 1e6 (on by default)
-    model = arvi.TrackingModel.from_env(env)
+    tracking = model.TrackingModel.from_env(env)
     cov = 30.0 * torch.eye(4, dtype=torch.float64)  # det 810000
     for _ in range(100):
-        cov = arvi.predict_cov(model, cov)
+        cov = model.predict_cov(tracking, cov, belief.logdet(cov))[0]
     assert 0 < math.log(1e6) - belief.logdet(cov).item() < 0.2  # grew up to the cap, then stopped
-    torch.testing.assert_close(arvi.predict_cov(model, cov), cov, rtol=0, atol=0)
+    kept, kept_logdet = model.predict_cov(tracking, cov, belief.logdet(cov))
+    torch.testing.assert_close(kept, cov, rtol=0, atol=0)
+    assert torch.equal(kept_logdet, belief.logdet(cov))
     narrow = torch.eye(4, dtype=torch.float64)
-    assert not torch.equal(arvi.predict_cov(model, narrow), narrow)
+    assert not torch.equal(model.predict_cov(tracking, narrow, belief.logdet(narrow))[0], narrow)
 
 
 # ------------------------------------------------------------------------------------------ pruning
@@ -143,7 +138,7 @@ def _prune(cost, xy, delta, eps=math.inf, diag=None, group=None):
     cost = torch.tensor(cost, dtype=torch.float64)
     group = torch.zeros(len(cost), dtype=torch.long) if group is None else torch.tensor(group)
     diag = None if diag is None else torch.tensor(diag, dtype=torch.float64)
-    return arvi.prune(cost, torch.tensor(xy, dtype=torch.float64), diag, group, delta, eps)
+    return pruning.prune(cost, torch.tensor(xy, dtype=torch.float64), diag, group, delta, eps)
 
 
 def test_a_node_within_delta_of_a_better_one_is_dropped():
@@ -192,7 +187,7 @@ def test_parallel_rounds_equal_sequential_suppression(count):
     xy = 10 * torch.rand(count, 2, generator=generator, dtype=torch.float64)
     cost = torch.rand(count, generator=generator, dtype=torch.float64)
     group = torch.randint(0, 3, (count,), generator=generator)
-    result = arvi.prune(cost, xy, None, group, delta=1.6)
+    result = pruning.prune(cost, xy, None, group, delta=1.6)
     assert result.keep.nonzero().squeeze(-1).tolist() == _sequential_suppression(cost, xy, group, 1.6)
 
 
@@ -264,11 +259,11 @@ def test_arvi_beats_random_and_one_step_greedy_on_a_seeded_episode():
 
 def test_min_range_hides_close_predicted_targets():
     env = make_env("empty1", transforms=False)
-    model = arvi.TrackingModel.from_env(env)
+    tracking = model.TrackingModel.from_env(env)
     pose = torch.tensor([[50.0, 50.0, 0.0]])
     ahead = torch.tensor([[[51.0, 50.0], [55.0, 50.0], [45.0, 50.0]]])  # 1 m and 5 m ahead, 5 m behind
-    assert arvi.visible_targets(model, pose, ahead).tolist() == [[True, True, False]]
-    assert arvi.visible_targets(model, pose, ahead, min_range=2.0).tolist() == [[False, True, False]]
+    assert model.visible_targets(tracking, pose, ahead).tolist() == [[True, True, False]]
+    assert model.visible_targets(tracking, pose, ahead, min_range=2.0).tolist() == [[False, True, False]]
 
 
 def test_min_range_keeps_the_robot_off_the_belief_mean():

@@ -1,17 +1,15 @@
-"""aia.train: every algorithm trains without NaN, checkpoints resume, bad configs are named."""
+"""aia.training.loop: every algorithm trains without NaN, checkpoints resume, bad configs are named."""
 
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 
 import pytest
 import torch
 from hydra import compose, initialize_config_module
 
 from aia.logging import read_run
-from aia.train import Updater, make_actor, make_loss, train
+from aia.training import make_actor, train
 
 
 def _config(*overrides: str):
@@ -99,60 +97,6 @@ def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
     assert run.topic_counts()["/log"] == ("foxglove.Log", 14)
 
 
-def _update_setup(algo: str, foreach: bool | None = None):
-    """A loss with its Adam, a target copy every 2 updates, and 3 batches of 16 seeded transitions."""
-    from torchrl.objectives import HardUpdate
-
-    from aia.envs import make_env
-
-    cfg = _config(f"algo={algo}", "hidden=[32,32]")
-    torch.manual_seed(0)
-    env = make_env("empty1", batch_size=16, seed=0)
-    actor = make_actor(cfg, env)
-    rollout = env.rollout(3, policy=actor)
-    loss = make_loss(cfg, actor)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr, foreach=foreach)
-    target_updater = HardUpdate(loss, value_network_update_interval=2)
-    return cfg, loss, optimizer, target_updater, [rollout[:, i] for i in range(3)]
-
-
-def _run_updates(algo: str, compile: bool | None, updates: int = 6, foreach: bool | None = None
-                 ) -> tuple[torch.Tensor, list[torch.Tensor]]:
-    """Losses and final parameters of ``updates`` steps; ``compile=None``: backward, clip_grad_norm_, Adam.step."""
-    cfg, loss, optimizer, target_updater, batches = _update_setup(algo, foreach)
-
-    def reference_update(batch):
-        out = loss(batch)
-        optimizer.zero_grad()
-        out["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.grad_clip)
-        optimizer.step()
-        target_updater.step()
-        return out
-
-    update = reference_update if compile is None else Updater(loss, optimizer, target_updater, cfg.grad_clip, compile)
-    losses = [update(batches[i % len(batches)].clone())["loss"].detach() for i in range(updates)]
-    return torch.stack(losses), [p.detach().clone() for p in loss.parameters()]
-
-
-@pytest.mark.parametrize("algo", ["dqn", "ddqn", "adfq"])
-def test_eager_updater_is_backward_clip_and_adam_step_bit_for_bit(algo):
-    reference_losses, reference_params = _run_updates(algo, compile=None)
-    losses, params = _run_updates(algo, compile=False)
-    assert torch.equal(losses, reference_losses)
-    assert all(torch.equal(p, q) for p, q in zip(params, reference_params, strict=True))
-    assert losses.unique().numel() == losses.numel()  # the updates changed the networks
-
-
-@pytest.mark.parametrize("algo, foreach", [("dqn", True), ("adfq", None)])
-def test_compiled_update_gives_the_eager_losses_and_parameters(algo, foreach):
-    eager_losses, eager_params = _run_updates(algo, compile=False, foreach=foreach)
-    losses, params = _run_updates(algo, compile=True, foreach=foreach)
-    torch.testing.assert_close(losses, eager_losses, rtol=1e-5, atol=1e-5)
-    for p, q in zip(params, eager_params, strict=True):
-        torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-5)
-
-
 def test_training_runs_with_every_compile_switch_on(tmp_path):
     cfg = _config("algo=adfq", "exploration=thompson", "frames=300", "compile.update=true", "compile.env=true",
                   "compile.policy=true", *SMALL)
@@ -167,46 +111,21 @@ def test_training_runs_with_every_compile_switch_on(tmp_path):
 def test_compile_update_switch_decides_whether_the_step_is_compiled(tmp_path, monkeypatch, switch):
     # compile.update is also the name of DictConfig's dict method: reading the switch as an attribute
     # gave that (truthy) method, and every run compiled its optimiser step.
-    import aia.train
+    import aia.training.optimizer as optimizer
 
     calls = []
-    monkeypatch.setattr(aia.train, "compiled_update", lambda fn: calls.append(fn) or fn)
+    monkeypatch.setattr(optimizer, "compiled_update", lambda fn: calls.append(fn) or fn)
     train(_config("frames=120", f"compile.update={str(switch).lower()}", *SMALL), tmp_path)
-    assert calls == ([aia.train.adam_step] if switch else [])
-
-
-def test_updater_needs_a_single_group_plain_adam(tmp_path):
-    _, loss, _, target_updater, _ = _update_setup("dqn")
-    with pytest.raises(TypeError, match="Adam"):
-        Updater(loss, torch.optim.SGD(loss.parameters(), lr=0.1), target_updater, 10.0)
-    with pytest.raises(ValueError, match=r"plain Adam.*got \{'weight_decay': 0.1, 'amsgrad': True\}"):
-        Updater(loss, torch.optim.Adam(loss.parameters(), weight_decay=0.1, amsgrad=True), target_updater, 10.0)
-
-
-def test_compiled_update_reads_the_learning_rate_at_every_step():
-    cfg, loss, optimizer, target_updater, batches = _update_setup("dqn")
-    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=True)
-    update(batches[0].clone())
-    optimizer.param_groups[0]["lr"] = 0.0  # e.g. a schedule's last value
-    before = [p.detach().clone() for p in loss.parameters()]
-    update(batches[1].clone())
-    assert all(torch.equal(p, q) for p, q in zip(loss.parameters(), before, strict=True))
-    assert all(state["step"] == 2 for state in optimizer.state.values())
+    assert calls == ([optimizer.update_step] if switch else [])
 
 
 def test_bad_configs_name_the_field(tmp_path):
-    with pytest.raises(ValueError, match="thompson.*adfq.*dqn"):
+    with pytest.raises(ValueError, match="exploration='thompson': expected egreedy with algo=dqn"):
         train(_config("exploration=thompson", *SMALL), tmp_path)
-    with pytest.raises(ValueError, match="eval.per_rollout=6 must be at most logger.record_every_evaluations=5"):
+    with pytest.raises(ValueError, match="eval.per_rollout=6: expected at most logger.record_every_evaluations=5"):
         train(_config("eval.per_rollout=6", "logger=mcap", "logger.record_every_evaluations=5"), tmp_path)
-    with pytest.raises(ValueError, match="collector.num_envs=0"):
+    with pytest.raises(ValueError, match="collector.num_envs=0: expected an integer >= 1"):
         train(_config("collector.num_envs=0", *SMALL), tmp_path)
-
-
-def test_app_rejects_an_unknown_group_option(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "aia.apps.train", "algo=sarsa", f"hydra.run.dir={tmp_path}"],
-                            capture_output=True, text=True, timeout=120)
-    assert result.returncode != 0 and "sarsa" in result.stderr and "adfq" in result.stderr
 
 
 def test_adfq_thompson_learns_to_beat_random_and_its_initial_policy(tmp_path):
@@ -218,7 +137,6 @@ def test_adfq_thompson_learns_to_beat_random_and_its_initial_policy(tmp_path):
     from aia.evaluation import episode_scores, run_episodes
     from aia.modules import EpsilonGreedy
     from aia.policies import RandomPolicy
-    from aia.train import make_actor
 
     cfg = _config("algo=adfq", "exploration=thompson", "frames=2000", "env.max_steps=50", "logger=none",
                   "eval.every_episodes=10", "seed=1")

@@ -1,0 +1,106 @@
+"""How the Hydra apps (``aia-train``, ``aia-eval``, ``aia-rollout``) run: one-line errors, quiet libraries.
+
+Libraries log at WARNING and above only (torchrl's INFO lines would break into the progress bar). An
+invalid input (a :class:`~aia.errors.ConfigError` from the validation layer, or a command line Hydra
+cannot compose: an unknown group option or key, a malformed override) ends the app with one line on stderr,
+``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. Any other exception is an internal
+error and keeps its full traceback. ``--debug`` (taken off the command line) or ``HYDRA_FULL_ERROR=1`` keeps
+the traceback of invalid input too.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import os
+import sys
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import hydra
+from hydra.errors import ConfigCompositionException, OverrideParseException
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from aia.errors import ConfigError, one_line
+
+COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
+DEBUG_FLAG = "--debug"
+QUIET_LIBRARIES = ("torchrl",)
+EXIT_USAGE = 2
+
+
+def group_options(group: str) -> str:
+    """The options of config group ``group`` (``conf/<group>/*.yaml``), comma-separated: the apps' ``--help``
+    lists them with ``${aia.options:<group>}``."""
+    folder = Path(str(resources.files("aia.conf"))) / group
+    return ", ".join(sorted(p.stem for p in folder.glob("*.yaml")))
+
+
+OmegaConf.register_new_resolver("aia.options", group_options, replace=True)
+
+
+def hydra_app(prog: str, config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[..., Any]]:
+    """``@hydra.main`` on ``pkg://aia.conf``/``config_name``, with invalid input ending the app with one line
+    on stderr and ``SystemExit(2)``: a :class:`ConfigError` raised by the task, or a command line that Hydra
+    cannot compose."""
+
+    def decorate(task: Callable[[DictConfig], Any]) -> Callable[..., Any]:
+        debug = False
+
+        @functools.wraps(task)
+        def guarded(cfg: DictConfig) -> Any:
+            for library in QUIET_LIBRARIES:  # after Hydra has configured logging
+                logging.getLogger(library).setLevel(logging.WARNING)
+            try:
+                return task(cfg)
+            except ConfigError as err:  # caught inside the job: Hydra would print a line of its own
+                if debug:
+                    raise
+                _exit_with(prog, err)
+
+        entry = hydra.main(config_path="pkg://aia.conf", config_name=config_name, version_base="1.3")(guarded)
+
+        @functools.wraps(task)
+        def run(*args: Any, **kwargs: Any) -> Any:
+            nonlocal debug
+            debug = DEBUG_FLAG in sys.argv[1:] or os.environ.get("HYDRA_FULL_ERROR") == "1"
+            sys.argv = [sys.argv[0], *(a for a in sys.argv[1:] if a != DEBUG_FLAG)]
+            previous = os.environ.get("HYDRA_FULL_ERROR")
+            os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra re-raises instead of printing its own report
+            try:
+                return entry(*args, **kwargs)
+            except COMPOSITION_ERRORS as err:
+                if debug:
+                    raise
+                _exit_with(prog, composition_message(err))
+            except ConfigError as err:  # a sweep's failed job, raised by Hydra once the sweep has ended
+                if debug:
+                    raise
+                _exit_with(prog, err)
+            finally:
+                if previous is None:
+                    os.environ.pop("HYDRA_FULL_ERROR", None)
+                else:
+                    os.environ["HYDRA_FULL_ERROR"] = previous
+
+        return run
+
+    return decorate
+
+
+def composition_message(err: Exception) -> str:
+    """Hydra's message without its config search path, with the first line of its OmegaConf cause (what
+    the value should have been)."""
+    message = str(err).split("Config search path")[0]
+    cause = err.__cause__
+    if isinstance(cause, OmegaConfBaseException) and cause.msg:
+        message += f" ({cause.msg.splitlines()[0]})"
+    return message
+
+
+def _exit_with(prog: str, err: Exception | str) -> None:
+    print(f"{prog}: error: {one_line(err)}", file=sys.stderr)
+    raise SystemExit(EXIT_USAGE) from None

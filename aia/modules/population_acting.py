@@ -1,0 +1,113 @@
+"""``PopulationQPolicy``: the collector's policy of ``P`` learners, each acting in its own worlds.
+
+The collector steps one env of ``P * W`` worlds, member-major (member ``k`` owns worlds ``k W .. k W + W - 1``).
+One call runs the :class:`~aia.modules.StackedQNetwork` on every member's observations and then each member's
+exploration: uniformly random actions during its warm-up frames, then epsilon-greedy on its own linear
+schedule, or ADFQ's Thompson sampling (``argmax_a q_a``, ``q_a ~ N(mean_a, sd_a^2)``).
+
+All draws are counter-based (:mod:`aia.envs.rng`): a pure function of the member's seed, the policy's step
+count and the world's slot. So a member draws the same numbers whatever the other members are (member ``k``
+of a population acts exactly as a population of one with its seed would), nothing but the step count is
+state (a checkpoint stores it), and no draw needs a host sync on CUDA (epsilon is computed on the device).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import Tensor
+
+from aia.envs import rng
+from aia.modules.exploration import exploring
+from aia.modules.stacked import StackedQNetwork
+
+# rng streams of the policy's draws (per step and member)
+_EXPLORE_STREAM, _RANDOM_STREAM, _THOMPSON_STREAM = 0, 1, 2
+# rng purpose of the policy's keys (apart from the env's world streams and the replay's)
+ACTING_PURPOSE = 1
+
+
+class PopulationQPolicy(TensorDictModuleBase):
+    """``action`` for ``P * W`` worlds from ``observation``, member by member, without gradients.
+
+    Args:
+        network: the members' stacked Q-network (ADFQ: it returns ``(mean, log_sd)``).
+        num_actions: size of the discrete action space.
+        worlds_per_member: ``W``.
+        seeds: one seed per member (its exploration stream).
+        thompson: Thompson sampling (ADFQ) instead of epsilon-greedy.
+        eps_init, eps_end, annealing_frames: each member's linear epsilon schedule over its frames.
+        warmup_frames: frames of uniformly random actions at the start of each member's run.
+
+    Exploration acts only when the exploration type is ``RANDOM`` or unset (TorchRL's convention); otherwise
+    the action is greedy (on the means for ADFQ). :attr:`steps` counts the exploring calls.
+    """
+
+    def __init__(self, network: StackedQNetwork, num_actions: int, worlds_per_member: int, seeds: Sequence[int],
+                 thompson: bool, eps_init: Sequence[float], eps_end: Sequence[float],
+                 annealing_frames: Sequence[int], warmup_frames: int, in_key: str = "observation",
+                 action_key: str = "action") -> None:
+        super().__init__()
+        members = len(seeds)
+        if network.num_members != members:
+            raise ValueError(f"{members} seeds for a network of {network.num_members} members")
+        if thompson and network.log_sd_bounds is None:
+            raise TypeError("Thompson sampling needs a network that returns (mean, log_sd): the ADFQ network")
+        self.in_keys = [in_key]
+        self.out_keys = [action_key]
+        self.network = network
+        self.num_actions = num_actions
+        self.worlds = worlds_per_member
+        self.thompson = thompson
+        self.warmup_frames = warmup_frames
+        device = network.weight0.device
+        self.keys = rng.seed_keys(list(seeds), ACTING_PURPOSE, device)
+        as_tensor = lambda values: torch.tensor(list(values), dtype=torch.float64, device=device)  # noqa: E731
+        self.eps_init, self.eps_end = as_tensor(eps_init), as_tensor(eps_end)
+        self.annealing_frames = as_tensor(annealing_frames)
+        self.steps = torch.zeros((), dtype=torch.int64, device=device)
+
+    @property
+    def frames(self) -> Tensor:
+        """Frames each member has collected under exploration so far (a tensor: no host sync)."""
+        return self.steps * self.worlds
+
+    def epsilon(self) -> Tensor:
+        """``[P]`` each member's epsilon now (its schedule at :attr:`frames`)."""
+        fraction = (self.frames / self.annealing_frames).clamp(0.0, 1.0)
+        return self.eps_init + fraction * (self.eps_end - self.eps_init)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Write the chosen action of every world (int64, shape = the batch shape)."""
+        obs = tensordict.get(self.in_keys[0])
+        members = self.keys.shape[0]
+        grouped = obs.reshape(members, self.worlds, obs.shape[-1])
+        with torch.no_grad():
+            out = self.network(grouped)
+        if not exploring():
+            action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
+            return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))
+        action = self._explore(out)
+        self.steps += 1
+        return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))
+
+    def _explore(self, out: Tensor | tuple[Tensor, Tensor]) -> Tensor:
+        """``[P, W]`` exploring actions of this step."""
+        counter = self.steps.expand(self.keys.shape[0])
+        W, A = self.worlds, self.num_actions
+        if self.thompson:
+            mean, log_sd = out
+            noise = rng.normal(self.keys, counter, _THOMPSON_STREAM, W * A, mean.dtype).reshape(mean.shape)
+            action = (mean + log_sd.exp() * noise).argmax(-1)
+            epsilon = torch.zeros_like(self.eps_init)
+        else:
+            action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
+            epsilon = self.epsilon()
+        warm = self.frames < self.warmup_frames
+        epsilon = torch.where(warm, torch.ones_like(epsilon), epsilon)
+        explore = rng.uniform(self.keys, counter, _EXPLORE_STREAM, W, torch.float64) < epsilon.unsqueeze(-1)
+        random = (rng.uniform(self.keys, counter, _RANDOM_STREAM, W, torch.float64) * A).long()
+        return torch.where(explore, random, action)

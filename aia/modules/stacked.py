@@ -1,0 +1,114 @@
+"""``StackedQNetwork``: the Q-networks of ``P`` independent learners as one module with a leading member dim.
+
+A population trains ``P`` copies of one architecture. Their parameters live stacked, ``weight [P, in, out]``
+and ``bias [P, 1, out]`` per layer, and the forward pass is one ``torch.baddbmm`` per layer: member ``k``'s
+slice of the input ``[P, ..., in]`` meets only member ``k``'s weights, so gradients of a sum of the members'
+losses reach each member's slice exactly as its own loss's gradients would. Because the member dimension is
+inside the network, TorchRL's ``DQNLoss`` and :class:`~aia.losses.ADFQLoss` run unchanged on batches shaped
+``[P, B]`` (they are shape-agnostic); no ``vmap`` over the loss is needed.
+
+Why not ``torch.vmap`` over the loss with ``TensorDict.from_modules`` parameters: measured on the 2-core CPU
+(2026-12-01, 3 x 128, batch 64, forward and backward), vmapped ``DQNLoss`` took 6-22 ms per update at P = 1
+and 14-44 ms at P = 20, and ``torch.compile`` around it did not help (graph breaks), against about 1.6 ms at
+P = 1 and 0.68 ms per member at P = 20 for a batched-linear network (``benchmarks/population.py`` measures
+both).
+
+Member ``k`` is built from an ordinary network (:func:`~aia.modules.make_q_network` or
+:class:`~aia.modules.ADFQNetwork`, e.g. initialised under member ``k``'s seed): :meth:`StackedQNetwork.stack`
+copies the networks in, :meth:`StackedQNetwork.unstack_into` writes member ``k`` back into such a network (its
+checkpoint is then the one a solo run of that network writes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+from aia.modules.q_networks import ADFQNetwork
+
+
+def _linears(network: nn.Module) -> tuple[list[nn.Linear], type[nn.Module]]:
+    """The linear layers of an MLP (TorchRL's ``MLP`` or an :class:`ADFQNetwork`) and its activation class."""
+    mlp = network.mlp if isinstance(network, ADFQNetwork) else network
+    layers = list(mlp)
+    linears = [layer for layer in layers if isinstance(layer, nn.Linear)]
+    activations = {type(layer) for layer in layers if not isinstance(layer, nn.Linear)}
+    if not linears or len(activations) > 1 or len(layers) != 2 * len(linears) - 1:
+        raise TypeError(f"expected an MLP of alternating Linear layers and one activation, got {mlp}")
+    return linears, activations.pop() if activations else nn.Identity
+
+
+class StackedQNetwork(nn.Module):
+    """``P`` MLP Q-networks (or ADFQ mean/log-sd networks) evaluated as one: ``[P, ..., in] -> [P, ..., A]``.
+
+    Parameters are named ``weight{i}`` (``[P, in, out]``) and ``bias{i}`` (``[P, 1, out]``) for layer ``i``.
+    For ADFQ networks (``log_sd_bounds`` given) the output is ``(mean, log_sd)`` with the log sd clamped, as
+    :class:`~aia.modules.ADFQNetwork` returns it.
+    """
+
+    def __init__(self, weights: Sequence[Tensor], biases: Sequence[Tensor], activation: type[nn.Module],
+                 log_sd_bounds: tuple[float, float] | None = None) -> None:
+        super().__init__()
+        if len(weights) != len(biases) or not weights:
+            raise ValueError(f"need one bias per weight, got {len(weights)} weights and {len(biases)} biases")
+        for i, (weight, bias) in enumerate(zip(weights, biases, strict=True)):
+            self.register_parameter(f"weight{i}", nn.Parameter(weight))
+            self.register_parameter(f"bias{i}", nn.Parameter(bias))
+        self.num_layers = len(weights)
+        self.activation = activation()
+        self.log_sd_bounds = log_sd_bounds
+
+    @classmethod
+    def stack(cls, networks: Sequence[nn.Module]) -> StackedQNetwork:
+        """One stacked network holding a copy of each of ``networks`` (same architecture), member ``k`` =
+        ``networks[k]``."""
+        layers = [_linears(network) for network in networks]
+        activation = layers[0][1]
+        shapes = [[tuple(linear.weight.shape) for linear in linears] for linears, _ in layers]
+        if any(shape != shapes[0] for shape in shapes) or any(act is not activation for _, act in layers):
+            raise ValueError(f"the members' networks differ in architecture: {sorted(set(map(str, shapes)))}")
+        weights = [torch.stack([linears[i].weight.detach().t() for linears, _ in layers]).contiguous()
+                   for i in range(len(shapes[0]))]
+        biases = [torch.stack([linears[i].bias.detach() for linears, _ in layers]).unsqueeze(1).contiguous()
+                  for i in range(len(shapes[0]))]
+        first = networks[0]
+        bounds = (first.log_sd_min, first.log_sd_max) if isinstance(first, ADFQNetwork) else None
+        return cls(weights, biases, activation, bounds)
+
+    @property
+    def num_members(self) -> int:
+        """``P``, the size of the leading member dimension."""
+        return self.weight0.shape[0]
+
+    def unstack_into(self, member: int, network: nn.Module) -> nn.Module:
+        """Copy member ``member``'s parameters into ``network`` (of the stacked architecture); returns it."""
+        linears, _ = _linears(network)
+        with torch.no_grad():
+            for i, linear in enumerate(linears):
+                linear.weight.copy_(getattr(self, f"weight{i}")[member].t())
+                linear.bias.copy_(getattr(self, f"bias{i}")[member, 0])
+        return network
+
+    def load_member(self, member: int, network: nn.Module) -> None:
+        """Overwrite member ``member``'s parameters with ``network``'s (the inverse of :meth:`unstack_into`)."""
+        linears, _ = _linears(network)
+        with torch.no_grad():
+            for i, linear in enumerate(linears):
+                getattr(self, f"weight{i}")[member].copy_(linear.weight.t())
+                getattr(self, f"bias{i}")[member, 0].copy_(linear.bias)
+
+    def forward(self, obs: Tensor) -> Tensor | tuple[Tensor, Tensor]:
+        """Q-values ``[P, ..., A]`` (ADFQ: ``(mean, log_sd)``) of ``obs`` ``[P, ..., in]``, member by member."""
+        members, *batch, features = obs.shape
+        x = obs.reshape(members, -1, features)
+        for i in range(self.num_layers):
+            x = torch.baddbmm(getattr(self, f"bias{i}"), x, getattr(self, f"weight{i}"))
+            if i < self.num_layers - 1:
+                x = self.activation(x)
+        out = x.reshape(members, *batch, x.shape[-1])
+        if self.log_sd_bounds is None:
+            return out
+        mean, log_sd = out.chunk(2, dim=-1)
+        return mean, log_sd.clamp(*self.log_sd_bounds)

@@ -1,0 +1,64 @@
+"""What the planner knows of a setting (the env's own motion, filter and sensor model) and the filter's
+covariance step of a tree node's children."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from aia.envs import belief
+from aia.envs.sensing import MapGeometry
+from aia.envs.tracking import TargetTrackingEnv
+
+
+class TrackingModel(NamedTuple):
+    """What the planner knows of a setting: the env's own motion, filter and sensor model (float64)."""
+
+    primitives: Tensor  # [A, 2] (v, w)
+    dt: float
+    transition: Tensor  # [4, 4] A
+    process_noise: Tensor  # [4, 4] W of the belief
+    meas_noise: Tensor  # [2, 2] V
+    log_det_cap: float  # the env's det cap (inf: none)
+    geometry: MapGeometry  # collision and the sensing rule (range, field of view, line of sight)
+
+    @classmethod
+    def from_env(cls, env: TargetTrackingEnv) -> TrackingModel:
+        """The model of ``env`` (its very tensors, cast to float64)."""
+        cfg, f64 = env.config, torch.float64
+        return cls(env.primitives.to(f64), cfg.dt, env.transition.to(f64), env.belief_noise.to(f64),
+                   env.meas_noise.to(f64), env.log_det_cap, env.geometry)
+
+
+def visible_targets(model: TrackingModel, pose: Tensor, positions: Tensor, min_range: float = 0.0) -> Tensor:
+    """``[..., N]`` whether each target position ``[..., N, 2]`` is seen from ``pose [..., 3]``: the env's
+    sensing rule (:meth:`MapGeometry.in_view`, SPEC 4), and at least ``min_range`` away."""
+    visible, polar = model.geometry.in_view(pose, positions)
+    return visible & (polar[..., 0] >= min_range) if min_range > 0 else visible
+
+
+def predict_cov(model: TrackingModel, cov: Tensor, logdet: Tensor) -> tuple[Tensor, Tensor]:
+    """The env's covariance prediction ``A Sigma A^T + W`` with its det cap (the rule of
+    :func:`belief.cap_det`: keep ``cov`` where the prediction reaches the cap), and the result's log det.
+    ``logdet [...]`` is that of ``cov [..., 4, 4]``, reused where the cap keeps it."""
+    predicted = belief.predict_cov(cov, model.transition, model.process_noise)
+    predicted_logdet = belief.logdet(predicted)
+    if not math.isfinite(model.log_det_cap):
+        return predicted, predicted_logdet
+    keep = predicted_logdet >= model.log_det_cap
+    return torch.where(keep[..., None, None], cov, predicted), torch.where(keep, logdet, predicted_logdet)
+
+
+def update_visible(model: TrackingModel, predicted: Tensor, logdet: Tensor, pose: Tensor, positions: Tensor,
+                   visible: Tensor) -> tuple[Tensor, Tensor]:
+    """Kalman covariance update of the ``visible [M, N]`` targets only, the Jacobian taken at ``positions
+    [M, N, 2]`` seen from ``pose [M, 3]``; the others keep their ``predicted [M, N, 4, 4]`` covariance and
+    its ``logdet [M, N]``. Returns the covariances and their log dets (both new tensors)."""
+    node, target = visible.nonzero(as_tuple=True)
+    jacobian = belief.measurement_jacobian(positions[node, target], pose.index_select(0, node))
+    updated, _ = belief.update_cov(predicted[node, target], jacobian, model.meas_noise)
+    cov = predicted.index_put((node, target), updated)
+    return cov, logdet.index_put((node, target), belief.logdet(updated))

@@ -1,0 +1,85 @@
+"""The parts a training run is wired from: networks, the loss, the logger and the scene recorder."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig
+from tensordict.nn import TensorDictSequential
+from torch import nn
+from torchrl.objectives import DQNLoss, LossModule
+from torchrl.record.loggers import Logger
+from torchrl.record.loggers.csv import CSVLogger
+
+from aia.logging import MCAPLogger, SceneRecorder
+from aia.losses import ADFQLoss
+from aia.modules import ADFQNetwork, StackedQNetwork, make_q_network
+from aia.modules.q_networks import make_qvalue_actor
+
+
+def make_network(cfg: DictConfig, obs_dim: int, num_actions: int) -> nn.Module:
+    """One member's Q-network (MLP, or the ADFQ mean/log-sd network), initialised from torch's global RNG."""
+    hidden = tuple(cfg.hidden)
+    if cfg.algo.name == "adfq":
+        return ADFQNetwork(obs_dim, num_actions, hidden, var_min=cfg.algo.var_min, sd_max=cfg.algo.sd_max)
+    return make_q_network(obs_dim, num_actions, hidden)
+
+
+def make_actor(cfg: DictConfig, env) -> TensorDictSequential:
+    """The greedy Q-value actor of one run for ``env``'s observation (what ``aia-eval`` loads a checkpoint into)."""
+    network = make_network(cfg, env.observation_spec["observation"].shape[-1], env.action_spec.n)
+    return make_qvalue_actor(network.to(cfg.device), env.action_spec, adfq=cfg.algo.name == "adfq")
+
+
+def make_stacked_network(cfgs: Sequence[DictConfig], obs_dim: int, num_actions: int) -> StackedQNetwork:
+    """The members' networks stacked, member ``k`` initialised under ``torch.manual_seed(cfgs[k].seed)``
+    (the initialisation a population of one with that seed gets)."""
+    networks = []
+    for cfg in cfgs:
+        torch.manual_seed(cfg.seed)
+        networks.append(make_network(cfg, obs_dim, num_actions))
+    return StackedQNetwork.stack(networks).to(cfgs[0].device)
+
+
+def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:
+    """DQN, Double DQN (TorchRL's DQNLoss) or ADFQ on ``actor``, with per-sample losses (``reduction="none"``:
+    the optimiser step averages each member's own)."""
+    if cfg.algo.name == "adfq":
+        return ADFQLoss(actor, gamma=cfg.gamma, noise=cfg.algo.noise, var_min=cfg.algo.var_min,
+                        sd_max=cfg.algo.sd_max, reward_var=cfg.algo.reward_var,
+                        loss_function=cfg.algo.loss_function, reduction="none")
+    loss = DQNLoss(actor, loss_function=cfg.algo.loss_function, delay_value=True,
+                   double_dqn=cfg.algo.name == "ddqn", action_space="categorical", reduction="none")
+    loss.make_value_estimator(gamma=cfg.gamma)
+    return loss
+
+
+def make_logger(cfg: DictConfig, out_dir: Path) -> Logger | None:
+    """TorchRL logger of one run (``logger=mcap``, ``logger=csv`` or ``logger=none``); it gets the config."""
+    if cfg.logger.name == "none":
+        return None
+    if cfg.logger.name == "csv":
+        logger = CSVLogger(exp_name="csv", log_dir=str(out_dir))
+    elif cfg.logger.name == "mcap":
+        logger = MCAPLogger(
+            exp_name=f"{cfg.algo.name}-{cfg.exploration.name}-seed{cfg.seed}", log_dir=out_dir,
+            file_name=cfg.logger.file, compression=cfg.logger.compression, chunk_size=cfg.logger.chunk_size,
+            flush_interval_s=cfg.logger.flush_interval_s,
+            run_metadata={"seed": cfg.seed, "algo": cfg.algo.name, "exploration": cfg.exploration.name},
+        )
+    else:
+        raise ValueError(f"logger={cfg.logger.name!r} is not one of ['mcap', 'csv', 'none']")
+    logger.log_hparams(cfg)
+    return logger
+
+
+def make_recorders(cfg: DictConfig, loggers: Sequence[Logger | None], eval_env) -> list[SceneRecorder]:
+    """One scene recorder per member on the evaluation env when the MCAP loggers record episodes, else none."""
+    if cfg.logger.name != "mcap" or cfg.logger.record_every_evaluations < 1:
+        return []
+    recorders = [SceneRecorder(logger) for logger in loggers]
+    for recorder in recorders:
+        eval_env.append_transform(recorder)
+    return recorders

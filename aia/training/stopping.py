@@ -1,0 +1,46 @@
+"""Stopping a run cleanly on a signal: what a cluster's preemption or time limit sends (SIGTERM, SIGUSR1 with
+SLURM's ``--signal``) and Ctrl-C (SIGINT).
+
+:class:`StopOnSignals` only records the signal; the training loop checks :attr:`StopOnSignals.signal` after
+every step and then ends as at the end of its budget: it plays the pending evaluations, writes every member's
+checkpoint and closes the logs. The app then exits with status ``128 + signal`` (143 for SIGTERM).
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from types import FrameType
+
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
+
+
+class StopOnSignals:
+    """A context manager that turns :data:`STOP_SIGNALS` into a request to stop (``signal``: the first one).
+
+    Outside the main thread (where Python cannot install handlers, e.g. a launcher's worker thread) it
+    installs nothing and the signals keep their default effect.
+    """
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.signal is None:
+            self.signal = signum
+
+    def __enter__(self) -> StopOnSignals:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = {signum: signal.signal(signum, self._handle) for signum in STOP_SIGNALS}
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous)
+        self._previous = {}
+
+    @property
+    def exit_status(self) -> int:
+        """``128 + signal`` once a signal came (the shell's convention), else 0."""
+        return 128 + self.signal if self.signal else 0

@@ -1,0 +1,229 @@
+"""Member-frames per second of a population, against one learner alone, and against the solo loop before populations.
+
+1. Populations: ``aia.training.train_population`` in the paper's regime (one world per member, one update per
+   frame, batch 64, evaluation after every episode or two as the presets say) for P = 1, 5, 20, 80 members,
+   for DQN on the 1-target network (``paper_empty1``: 3 x 128) and ADFQ with Thompson sampling on the
+   3-target network (``paper_small3``: 3 x 256), eager and compiled (every ``compile.*`` switch on). The rate
+   counts the updating frames of every member: a job of ``warmup + frames`` frames minus a warm-up-only job
+   and minus the job's first (compiling) update, as ``train_throughput.measure_loop``. Each row also gives the
+   arithmetic it does (the updates' and the acting's matmul FLOPs per member-frame) as a share of this
+   machine's measured matmul rate (``sgemm_gflops``, all threads), the ceiling a batched program can reach.
+2. The vmap alternative: one update of P members of the 3 x 128 DQN by ``torch.vmap`` over TorchRL's
+   ``DQNLoss`` with the members' parameters stacked and entered with ``to_module``, against the stacked
+   network inside one ``DQNLoss`` (what the loop uses), eager, P = 1 and 20.
+3. Before populations: ``--baseline REV`` runs ``benchmarks/train_throughput.py --parts loop`` of the commit
+   ``REV`` (the solo loop before this change, extracted with ``git archive``) and of the working tree, in the
+   same run, so that P = 1 of the new loop is compared with the old loop on the same machine the same hour.
+
+Prints a table and writes JSON (default ``benchmarks/results/population_<device>.json``).
+
+    python benchmarks/population.py
+    python benchmarks/population.py --members 1,5,20 --modes eager --baseline 54a9a5a
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+from hydra import compose, initialize_config_module
+from tensordict import TensorDict
+from torchrl.objectives import DQNLoss
+
+from aia.envs import make_env
+from aia.modules import make_q_network
+from aia.modules.q_networks import make_qvalue_actor
+from aia.training import train_population
+from aia.training.components import make_loss, make_stacked_network
+
+ROWS = {"dqn": ("paper_empty1", "egreedy", 8, (128, 128, 128)), "adfq": ("paper_small3", "thompson", 20,
+                                                                          (256, 256, 256))}
+NUM_ACTIONS, BATCH = 12, 64
+LOOP_SWITCHES = ("update", "env", "policy")
+HERE = Path(__file__).parent
+
+
+def _config(*overrides: str):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        return compose(config_name="train", overrides=list(overrides))
+
+
+def sgemm_gflops(size: int = 1024, calls: int = 30) -> float:
+    """This machine's float32 matmul rate (all of torch's threads), the ceiling of a batched update."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    for _ in range(3):
+        a @ b
+    start = time.perf_counter()
+    for _ in range(calls):
+        a @ b
+    return 2 * size**3 * calls / (time.perf_counter() - start) / 1e9
+
+
+def flops_per_member_frame(algo: str) -> float:
+    """Matmul FLOPs of one member-frame: acting on one world, and one update of a batch of 64 (forward of
+    the online network and its backward, twice the forward; the target network's forward on s' and, for
+    ADFQ, on s as well)."""
+    _, _, obs, hidden = ROWS[algo]
+    outputs = 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS
+    widths = [obs, *hidden, outputs]
+    per_sample = 2 * sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True))
+    passes = 3 + (2 if algo == "adfq" else 1)  # online forward + backward (x2), target forwards
+    return per_sample * (1 + BATCH * passes)
+
+
+def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str) -> dict:
+    """Member-frames per second of the updating frames of a ``members``-member population."""
+    experiment, exploration, _, _ = ROWS[algo]
+    switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
+    overrides = [f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
+                 f"device={device}", f"warmup_frames={warmup}", *switches]
+
+    def job(length: int) -> tuple[float, dict]:
+        cfgs = [_config(*overrides, f"frames={length}", f"seed={seed}") for seed in range(members)]
+        with tempfile.TemporaryDirectory() as out:
+            start = time.perf_counter()
+            states = train_population(cfgs, [Path(out) / str(seed) for seed in range(members)])
+            return time.perf_counter() - start, states[0].seconds
+
+    warmup_s, warmup_phases = job(warmup)
+    warmup_s -= warmup_phases.get("first_update", 0.0)
+    job_s, phases = job(warmup + frames)
+    updating_s = job_s - warmup_s - phases["first_update"]
+    split = {phase: 1e3 * (t - warmup_phases.get(phase, 0.0)) / frames
+             for phase, t in phases.items() if phase != "first_update"}
+    return {"kind": "population", "algo": algo, "network": "x".join(map(str, ROWS[algo][3])), "members": members,
+            "compiled": compile, "device": device, "warmup_frames": warmup, "updating_frames": frames,
+            "job_s": job_s, "first_update_s": phases["first_update"],
+            "member_frames_per_s": members * frames / updating_s,
+            "ms_per_step_by_phase": split}
+
+
+def measure_vmap_update(members: int, repeats: int = 30) -> dict:
+    """ms of one forward and backward of ``members`` 3 x 128 DQN losses: ``torch.vmap`` over ``DQNLoss`` with
+    stacked parameters against the stacked network inside one ``DQNLoss`` (``reduction="none"``)."""
+    cfg = _config("algo=dqn", "hidden=[128,128,128]")
+    env = make_env("empty1", batch_size=BATCH, seed=0)
+    batch = env.rollout(2)[:, -1]
+    # vmap over TorchRL's own loss, parameters of each member entered with to_module
+    torch.manual_seed(0)
+    solo = DQNLoss(make_qvalue_actor(make_q_network(8, NUM_ACTIONS), env.action_spec), delay_value=True,
+                   action_space="categorical")
+    solo.make_value_estimator(gamma=cfg.gamma)
+    online = torch.stack([solo.value_network_params.data.clone() for _ in range(members)]).requires_grad_(True)
+    target = torch.stack([solo.target_value_network_params.data.clone() for _ in range(members)])
+    batches = torch.stack([batch.clone() for _ in range(members)])
+
+    def member_loss(params: TensorDict, target_params: TensorDict, member_batch: TensorDict):
+        with params.to_module(solo.value_network_params), target_params.to_module(solo.target_value_network_params):
+            return solo(member_batch)["loss"]
+
+    def vmapped() -> None:
+        torch.vmap(member_loss, randomness="different")(online, target, batches).sum().backward()
+
+    stacked_network = make_stacked_network([cfg] * members, 8, NUM_ACTIONS)
+    stacked = make_loss(cfg, make_qvalue_actor(stacked_network, env.action_spec))
+    stacked_batch = batches.select(*stacked.in_keys)
+
+    def stacked_update() -> None:
+        stacked(stacked_batch.clone())["loss"].mean(-1).sum().backward()
+
+    result = {"kind": "update_alternatives", "algo": "dqn", "network": "128x128x128", "members": members}
+    for name, fn in (("vmap_dqn_loss_ms", vmapped), ("stacked_network_ms", stacked_update)):
+        for _ in range(3):
+            fn()
+        start = time.perf_counter()
+        for _ in range(repeats):
+            fn()
+        result[name] = 1e3 * (time.perf_counter() - start) / repeats
+    return result
+
+
+def measure_solo_loops(baseline: str, frames: int, repeats: int) -> list[dict]:
+    """``train_throughput.py --parts loop`` of commit ``baseline`` and of the working tree, one after the other."""
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        old = Path(tmp) / "old"
+        old.mkdir()
+        archive = subprocess.run(["git", "archive", baseline], cwd=HERE.parent, capture_output=True, check=True)
+        subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
+        (old / "aia" / "conf").symlink_to(old / "conf")  # the old code's configs, as its install maps them
+        for label, root, env in (("before", old, {"PYTHONPATH": str(old)}), ("now", HERE.parent, {})):
+            out = Path(tmp) / f"{label}.json"
+            subprocess.run([sys.executable, str(root / "benchmarks" / "train_throughput.py"), "--parts", "loop",
+                            "--algos", "dqn,adfq", "--loop-frames", str(frames), "--repeats", str(repeats),
+                            "--out", str(out)], cwd=tmp, env=os.environ | env, check=True)
+            for row in json.loads(out.read_text())["results"]:
+                rows.append(row | {"kind": "solo_loop", "code": label if label == "now" else baseline})
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--members", default="1,5,20,80", help="comma-separated population sizes")
+    parser.add_argument("--modes", default="eager,compiled", help="comma-separated: eager, compiled")
+    parser.add_argument("--warmup", type=int, default=200, help="warm-up frames of each job")
+    parser.add_argument("--frames", type=int, default=300, help="updating frames of each job")
+    parser.add_argument("--baseline", default=None, help="git commit of the solo loop to compare P = 1 with")
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    sizes = [int(p) for p in args.members.split(",")]
+    modes = args.modes.split(",")
+    if not set(modes) <= {"eager", "compiled"}:
+        parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")
+
+    gflops_before = sgemm_gflops()
+    rows = []
+    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'P':>4}{'member-frames/s':>17}{'x P=1':>7}"
+          f"{'% of matmul peak':>18}  ms per step by phase")
+    for algo in ROWS:
+        for mode in modes:
+            solo_rate = None
+            for members in sizes:
+                row = measure_population(algo, members, mode == "compiled", args.warmup, args.frames, args.device)
+                solo_rate = row["member_frames_per_s"] if members == 1 else solo_rate
+                row["speedup_over_p1"] = row["member_frames_per_s"] / solo_rate if solo_rate else None
+                row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(algo) / (
+                    gflops_before * 1e9)
+                rows.append(row)
+                speedup = f"{row['speedup_over_p1']:.1f}" if row["speedup_over_p1"] else "-"
+                phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
+                                   sorted(row["ms_per_step_by_phase"].items(), key=lambda item: -item[1]))
+                print(f"{algo:<6}{row['network']:<13}{mode:<10}{members:>4}{row['member_frames_per_s']:>17,.0f}"
+                      f"{speedup:>7}{100 * row['share_of_sgemm_peak']:>17.1f}%  {phases}", flush=True)
+    print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
+          f"{'stacked network ms':>20}")
+    for members in (1, 20):
+        row = measure_vmap_update(members)
+        rows.append(row)
+        print(f"{'':<50}{members:>4}{row['vmap_dqn_loss_ms']:>18.2f}{row['stacked_network_ms']:>20.2f}", flush=True)
+    if args.baseline:
+        print(f"\nsolo loop before ({args.baseline}) and now, updating frames/s (train_throughput.py --parts loop)")
+        for row in measure_solo_loops(args.baseline, 2000, 3):
+            rows.append(row)
+            mode = "compiled" if row["compiled"] else "eager"
+            runs = "/".join(f"{rate:.0f}" for rate in row["updating_frames_per_s_runs"])
+            print(f"  {row['code']:<10}{row['algo']:<6}{mode:<10}{row['updating_frames_per_s']:>8,.0f} ({runs})",
+                  flush=True)
+
+    out = args.out or HERE / "results" / f"population_{args.device.split(':')[0]}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
+            "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
+            "load_average_1_5_15min": os.getloadavg(),
+            "sgemm_gflops_before": gflops_before, "sgemm_gflops_after": sgemm_gflops(),
+            "flops_per_member_frame": {algo: flops_per_member_frame(algo) for algo in ROWS}}
+    out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,135 @@
+"""The population launcher: a Hydra ``Launcher`` that trains the jobs of a sweep as populations.
+
+Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_job_idx)``). This one
+
+1. prepares every job as Hydra's own launchers do (``run_job``: the job's folder, its ``.hydra/`` configs,
+   ``hydra.job.num``), with a task that only records the job's config and folder;
+2. groups the jobs whose configs differ only in the keys a member may set for itself
+   (:data:`aia.training.MEMBER_KEYS`: seed, learning rate, epsilon schedule, resume) and says, for every job
+   that must run alone, which key kept it apart;
+3. runs each group as one call of the task's population entry (``task``, a dotted path: for ``aia-train``
+   :func:`aia.apps.train.train_jobs`), groups in parallel processes up to ``n_jobs``, each with its share of
+   the cores as its torch thread pool;
+4. returns one ``JobReturn`` per job, completed with the job's own result or failed with its own error.
+
+Its settings are ``conf/hydra/launcher/population.yaml`` (``n_jobs``, ``task``), found by Hydra in aia's
+config path like the other launchers' (an editable install hides this namespace package from Hydra's plugin
+scan, so the settings are not registered from here).
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
+from hydra.plugins.launcher import Launcher
+from hydra.types import HydraContext, TaskFunction
+from joblib import Parallel, delayed
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+log = logging.getLogger(__name__)
+
+
+def _import(path: str) -> Callable:
+    module, _, name = path.rpartition(".")
+    return getattr(importlib.import_module(module), name)
+
+
+def group_jobs(cfgs: Sequence[DictConfig]) -> tuple[list[list[int]], list[str]]:
+    """The jobs' indices grouped into populations (in order of first appearance), and one line per job that
+    runs alone naming the key that kept it from the first group."""
+    from aia.training.members import first_difference, population_signature
+
+    groups: dict[str, list[int]] = {}
+    for index, cfg in enumerate(cfgs):
+        groups.setdefault(population_signature(cfg), []).append(index)
+    grouped = list(groups.values())
+    notes = []
+    for group in grouped[1:] if len(grouped) > 1 else []:
+        if len(group) == 1:
+            key, own, other = first_difference(cfgs[group[0]], cfgs[grouped[0][0]])
+            notes.append(f"job {group[0]} runs alone: its {key}={own!r} differs from job {grouped[0][0]}'s {other!r}")
+    return grouped, notes
+
+
+def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | None) -> list[tuple[bool, object]]:
+    """Train one population (in a worker process or in-process): ``(ok, result or error)`` per member."""
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+    configs = [OmegaConf.create(cfg) for cfg in cfgs]
+    try:
+        results = _import(task)(configs, [Path(d) for d in out_dirs])
+    except Exception as err:  # the whole population failed: every member's job reports it
+        return [(False, err)] * len(cfgs)
+    return [(not isinstance(r, BaseException), r) for r in results]
+
+
+class PopulationLauncher(Launcher):
+    """Launches a sweep as populations (see the module docstring)."""
+
+    def __init__(self, n_jobs: int = 2, task: str = "aia.apps.train.train_jobs") -> None:
+        self.n_jobs = n_jobs
+        self.task = task
+        self.config: DictConfig | None = None
+        self.hydra_context: HydraContext | None = None
+        self.task_function: TaskFunction | None = None
+
+    def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
+        self.config = config
+        self.hydra_context = hydra_context
+        self.task_function = task_function
+
+    def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
+        setup_globals()
+        assert self.config is not None and self.hydra_context is not None
+        configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
+        Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
+        prepared, configs = zip(*(self._prepare(initial_job_idx + i, overrides)
+                                  for i, overrides in enumerate(job_overrides)), strict=True)
+        groups, notes = group_jobs(configs)
+        sizes = ", ".join(str(len(g)) for g in groups)
+        print(f"population launcher: {len(prepared)} jobs in {len(groups)} population(s) of {sizes} member(s)")
+        for note in notes:
+            print(f"population launcher: {note}")
+        parallel = max(1, min(self.n_jobs, len(groups)))
+        threads = max(1, (os.cpu_count() or 1) // parallel) if parallel > 1 else None
+        calls = [(self.task, [OmegaConf.to_container(configs[i]) for i in group],
+                  [prepared[i].return_value for i in group], threads) for group in groups]
+        if parallel == 1:
+            outcomes = [run_group(*call) for call in calls]
+        else:
+            outcomes = Parallel(n_jobs=parallel, backend="loky")(delayed(run_group)(*call) for call in calls)
+        for group, results in zip(groups, outcomes, strict=True):
+            for index, (ok, result) in zip(group, results, strict=True):
+                prepared[index].status = JobStatus.COMPLETED if ok else JobStatus.FAILED
+                prepared[index].return_value = result
+                if not ok:
+                    log.error(f"job {prepared[index].hydra_cfg.hydra.job.num} failed: {result}")
+        return list(prepared)
+
+    def _prepare(self, index: int, overrides: Sequence[str]) -> tuple[JobReturn, DictConfig]:
+        """The job's folder and ``.hydra/`` configs by Hydra's ``run_job`` (its return value is the folder),
+        and its task config resolved in the job's own Hydra context."""
+        assert self.config is not None and self.hydra_context is not None
+        log.info(f"\t#{index} : {' '.join(filter_overrides(overrides))}")
+        sweep_config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+        with open_dict(sweep_config):
+            sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{index}"
+            sweep_config.hydra.job.num = index
+        ret = run_job(hydra_context=self.hydra_context, task_function=_job_folder, config=sweep_config,
+                      job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
+        if ret.status != JobStatus.COMPLETED:
+            raise RuntimeError(f"could not prepare job {index}: {ret._return_value}")
+        return ret, OmegaConf.create(OmegaConf.to_container(ret.cfg, resolve=True))
+
+
+def _job_folder(cfg: DictConfig) -> str:
+    """The preparation task: the job's output folder (``run_job`` has created it and saved the configs)."""
+    return str(HydraConfig.get().runtime.output_dir)

@@ -1,0 +1,152 @@
+"""Bad input to aia-train, aia-eval and aia-rollout: exit status 2, one stderr line naming the key and the
+value, no run log left behind; ``--debug`` keeps the traceback; internal errors keep theirs. The apps run
+in-process (``main()`` with ``sys.argv`` patched)."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from aia.apps import evaluate, rollout, train
+from aia.errors import ConfigError
+
+HYDRA_QUIET = ["hydra.output_subdir=null", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled"]
+
+
+@pytest.fixture
+def bad_map(tmp_path):
+    path = tmp_path / "room.yaml"
+    path.write_text("size: [10.0, 10.0]\nresolution: 0.5\nboxes: [[20.0, 20.0, 25.0, 25.0]]\n")
+    return path
+
+
+@pytest.fixture
+def malformed_map(tmp_path):
+    path = tmp_path / "broken.yaml"
+    path.write_text("size: [10.0, 10.0\nresolution: 0.5\n")
+    return path
+
+
+def run_app(main, argv: list[str], tmp_path, monkeypatch, capsys) -> tuple[int, str]:
+    """Exit status and stderr of ``main`` run with ``argv`` in a Hydra run dir under ``tmp_path``."""
+    monkeypatch.setattr(sys, "argv", ["app", f"hydra.run.dir={tmp_path / 'run'}", *HYDRA_QUIET, *argv])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main()
+    return info.value.code, capsys.readouterr().err
+
+
+def _assert_one_line(code: int, err: str, prog: str, *words: str) -> None:
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith(f"{prog}: error: "), err
+    for word in words:
+        assert word in err, (word, err)
+
+
+TRAIN_CASES = [
+    (["lr=-1"], ["lr=-1", "> 0"]),
+    (["algo=sarsa"], ["sarsa", "adfq"]),
+    (["lr=abc"], ["lr='abc'", "a number"]),
+    (["grad_clip=0"], ["grad_clip=0", "> 0"]),
+    (["gamma=1.5"], ["gamma=1.5", "<= 1"]),
+    (["batch_size=2000"], ["batch_size=2000", "buffer_size=1000"]),
+    (["frames=0"], ["frames=0", ">= 1"]),
+    (["hidden=[]"], ["hidden=[]", "layer widths"]),
+    (["device=cuda:7"], ["device='cuda:7'", "CUDA device"]),
+    (["device=gpu"], ["device='gpu'", "cpu"]),
+    (["exploration=thompson"], ["exploration='thompson'", "algo=dqn", "adfq"]),
+    (["eval.per_rollout=20"], ["eval.per_rollout=20", "record_every_evaluations=10"]),
+    (["resume=/nonexistent/last.pt"], ["resume='/nonexistent/last.pt'", "existing checkpoint"]),
+    (["env.sensor.range=-3"], ["env.sensor.range=-3", "> 0"]),
+    (["env=schema"], ["env/schema", "empty1"]),
+    (["env=variant_2019"], ["env/variant_2019", "small3_2019"]),
+    (["lr2=1"], ["lr2", "+lr2=1"]),
+    (["env.sensor.range=abc"], ["env.sensor.range=abc", "Float"]),
+]
+
+
+@pytest.mark.parametrize("argv, words", TRAIN_CASES, ids=[" ".join(a) for a, _ in TRAIN_CASES])
+def test_train_rejects_bad_input_in_one_line(argv, words, tmp_path, monkeypatch, capsys):
+    code, err = run_app(train.main, argv, tmp_path, monkeypatch, capsys)
+    _assert_one_line(code, err, "aia-train", *words)
+    assert not list(tmp_path.rglob("*.mcap"))  # a run refused before its first step leaves no log
+
+
+def test_train_rejects_a_bad_map_file_naming_it(bad_map, malformed_map, tmp_path, monkeypatch, capsys):
+    code, err = run_app(train.main, [f"env.map={bad_map}"], tmp_path, monkeypatch, capsys)
+    _assert_one_line(code, err, "aia-train", str(bad_map), "boxes[0]=[20.0, 20.0, 25.0, 25.0]", "[0, 10.0]")
+    code, err = run_app(train.main, [f"env.map={malformed_map}"], tmp_path, monkeypatch, capsys)
+    _assert_one_line(code, err, "aia-train", str(malformed_map), "YAML", "line")
+
+
+def test_debug_keeps_the_traceback(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["app", f"hydra.run.dir={tmp_path}", *HYDRA_QUIET, "lr=-1", "--debug"])
+    with pytest.raises(ConfigError, match="lr=-1"):
+        train.main()
+
+
+def test_internal_errors_keep_their_traceback(tmp_path, monkeypatch):
+    def broken(cfg, out_dir):
+        raise RuntimeError("internal")
+
+    monkeypatch.setattr(train, "train", broken)
+    monkeypatch.setattr(sys, "argv", ["app", f"hydra.run.dir={tmp_path}", *HYDRA_QUIET, "logger=none"])
+    with pytest.raises(RuntimeError, match="internal"):
+        train.main()
+
+
+@pytest.fixture
+def not_a_checkpoint(tmp_path):
+    path = tmp_path / "notes.pt"
+    path.write_text("not a checkpoint")
+    return path
+
+
+def test_eval_rejects_bad_input_in_one_line(not_a_checkpoint, tmp_path, monkeypatch, capsys):
+    cases = [
+        ([], ["checkpoint='???'", "aia-train"]),
+        (["checkpoint=/nonexistent.pt"], ["checkpoint='/nonexistent.pt'", "existing"]),
+        ([f"checkpoint={not_a_checkpoint}"], [f"checkpoint='{not_a_checkpoint}'", "torch checkpoint"]),
+        ([f"checkpoint={not_a_checkpoint}", "env=small2"], ["env='small2'", "policy=arvi"]),
+        (["policy=psychic"], ["policy='psychic'", "arvi"]),
+        (["policy=arvi", "episodes=0"], ["episodes=0", ">= 1"]),
+        (["epsilon=1.5", "policy=arvi"], ["epsilon=1.5", "<= 1"]),
+        (["policy=arvi", "device=cuda:7"], ["device='cuda:7'", "CUDA"]),
+        (["policy=arvi", "planner.horizon=0"], ["policy='arvi'", "planner.horizon=0"]),
+        (["policy=arvi", "env.num_targets=0"], ["env.num_targets=0", ">= 1"]),
+        (["policy=arvi", "planner=psychic"], ["planner/psychic", "arvi"]),
+    ]
+    for argv, words in cases:
+        code, err = run_app(evaluate.main, argv, tmp_path, monkeypatch, capsys)
+        _assert_one_line(code, err, "aia-eval", *words)
+    assert not list(tmp_path.rglob("*.mcap"))
+
+
+def test_rollout_rejects_bad_input_in_one_line(bad_map, tmp_path, monkeypatch, capsys):
+    cases = [
+        (["policies=[random,psychic]"], ["policies=['random', 'psychic']", "pursuit"]),
+        (["num_worlds=0"], ["num_worlds=0", ">= 1"]),
+        (["seed=-1"], ["seed=-1", ">= 0"]),
+        (["compile=maybe"], ["compile='maybe'", "true or false"]),
+        (["env.num_targetz=2"], ["env.num_targetz"]),
+        (["env=nowhere"], ["env/nowhere", "obstacles1"]),
+        ([f"env.map={bad_map}"], [str(bad_map), "boxes[0]"]),
+        (["env.map=atlantis"], ["env.map='atlantis'", "obstacles4"]),
+    ]
+    for argv, words in cases:
+        code, err = run_app(rollout.main, argv, tmp_path, monkeypatch, capsys)
+        _assert_one_line(code, err, "aia-rollout", *words)
+
+
+def test_help_lists_only_what_can_be_set(tmp_path, monkeypatch, capsys):
+    for main, groups, absent in ((train.main, ("env:", "algo:", "exploration:", "method:", "experiment:"),
+                                  ("maps", "planner", "schema", "variant_2019")),
+                                 (rollout.main, ("env:",), ("maps", "planner", "algo:", "schema", "variant_2019"))):
+        monkeypatch.setattr(sys, "argv", ["app", "--help"])
+        with pytest.raises(SystemExit) as info:
+            main()
+        assert info.value.code == 0
+        out = capsys.readouterr().out
+        assert all(group in out for group in groups) and not any(word in out for word in absent), out
+        assert "sensor:" in out and "exit" in out  # every field, and what invalid input does

@@ -1,0 +1,53 @@
+"""Optuna search through ``aia-train -m hydra/sweeper=paper_search``: each trial returns its objective
+(aia.objective) and the study's best trial is the one whose run scored highest."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import optuna
+import pytest
+import yaml
+from hydra import compose, initialize_config_module
+
+from aia.logging import read_run
+from aia.objective import search_objective
+
+TRIALS = 4
+
+
+def test_paper_search_composes_a_maximising_optuna_sweeper():
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=["hydra/sweeper=paper_search"], return_hydra_config=True)
+    sweeper = cfg.hydra.sweeper
+    assert sweeper._target_.endswith("OptunaSweeper")
+    assert sweeper.direction == "maximize"
+    assert sweeper.params.lr.startswith("tag(log, interval(")
+    assert sweeper.sampler._target_ == "optuna.samplers.TPESampler" and sweeper.sampler.seed == 0
+
+
+def test_a_four_trial_study_returns_the_lr_of_its_best_run(tmp_path):
+    storage = f"sqlite:///{tmp_path / 'study.db'}"  # the sqlite storage needs the pins of the `search` extra
+    result = subprocess.run(
+        [sys.executable, "-m", "aia.apps.train", "-m", "hydra/sweeper=paper_search", f"hydra.sweeper.n_trials={TRIALS}",
+         f"hydra.sweeper.storage={storage}", "hydra.sweeper.study_name=tiny", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+         "frames=100", "warmup_frames=50", "env.max_steps=50", "eval.episodes=2", "eval.per_rollout=1",
+         "logger.record_every_evaluations=0", "threads=1"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    objectives = {}
+    for trial in range(TRIALS):
+        run_dir = tmp_path / "sweep" / str(trial)
+        overrides = dict(o.split("=", 1) for o in yaml.safe_load((run_dir / ".hydra" / "overrides.yaml").read_text()))
+        scores = read_run(run_dir / "run.mcap").scalars("eval/score").values
+        objectives[float(overrides["lr"])] = search_objective(list(scores))
+    assert len(objectives) == TRIALS  # four different learning rates
+    assert all(1e-4 <= lr <= 3e-3 for lr in objectives)
+    best_lr = max(objectives, key=objectives.get)
+    results = yaml.safe_load((tmp_path / "sweep" / "optimization_results.yaml").read_text())
+    assert results["best_params"]["lr"] == pytest.approx(best_lr)
+    assert results["best_value"] == pytest.approx(objectives[best_lr])
+    study = optuna.load_study(study_name="tiny", storage=storage)
+    assert sorted(t.value for t in study.trials) == pytest.approx(sorted(objectives.values()))

@@ -1,0 +1,45 @@
+"""make_env and the env config: every bad input is a one-line ConfigError naming the key and the value."""
+
+from __future__ import annotations
+
+import pytest
+
+from aia.envs import make_env
+from aia.envs.config import TrackingConfig
+from aia.envs.factory import available_settings, to_tracking_config
+from aia.errors import ConfigError
+
+CASES = [
+    ("nowhere", [], "env='nowhere'", "empty1"),
+    ("empty1", ["map=atlantis"], "env.map='atlantis'", "obstacles4"),
+    ("empty1", ["num_targets=0"], "env.num_targets=0", ">= 1"),
+    ("empty1", ["dt=-0.5"], "env.dt=-0.5", "> 0"),
+    ("empty1", ["sensor.fov_deg=400"], "env.sensor.fov_deg=400", "<= 360"),
+    ("empty1", ["belief.det_cap=0"], "env.belief.det_cap=0", "or null"),
+    ("empty1", ["target.init_distance=[5,1]"], "env.target.init_distance=[5.0, 1.0]", "min <= max"),
+    ("empty1", ["robot.linear_speeds=[]"], "env.robot.linear_speeds=[]", "non-empty"),
+    ("empty1", ["belief.init_offset_shape=ring"], "env.belief.init_offset_shape='ring'", "disk"),
+    ("empty1", ["sensr.range=3"], "overrides=['sensr.range=3']", "sensr"),
+    ("empty1", ["map=/nonexistent/room.yaml"], "env.map='/nonexistent/room.yaml'", "does not exist"),
+]
+
+
+@pytest.mark.parametrize("setting, overrides, named, allowed", CASES, ids=[c[2] for c in CASES])
+def test_bad_env_input_is_one_line_naming_key_and_value(setting, overrides, named, allowed):
+    with pytest.raises(ConfigError) as info:
+        make_env(setting, overrides=overrides)
+    message = str(info.value)
+    assert named in message and allowed in message and "\n" not in message
+
+
+def test_a_bad_type_in_a_config_node_is_named():
+    with pytest.raises(ConfigError, match=r"env.sensor.range='far'.*Float"):
+        to_tracking_config({"sensor": {"range": "far"}})
+    with pytest.raises(ConfigError, match="num_targets=1.5"):
+        TrackingConfig(num_targets=1.5)
+
+
+def test_internal_configs_are_not_settings():
+    assert "variant_2019" not in available_settings() and "schema" not in available_settings()
+    assert {"empty1", "obstacles1", "small2", "small3", "small3_2019"} <= set(available_settings())
+    assert make_env("small3_2019").base_env.config.features.relative_velocity == "2019"  # the variant applies

@@ -1,0 +1,95 @@
+"""hydra/launcher=population: one -m command trains its jobs as populations (2 and 3 members here), each job
+with its own folder, configs, log and checkpoint; a sweep that cannot share a program splits, saying why;
+a member with a bad config fails its own job only; a member equals the same job run alone. The app runs
+in-process (``main()`` with ``sys.argv`` patched)."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+import yaml
+from hydra.core.plugins import Plugins
+from hydra.core.utils import JobStatus
+
+import aia.apps.train as train_app
+from aia.logging import read_run
+
+LAUNCHER = "hydra_plugins.aia_population_launcher.population_launcher.PopulationLauncher"
+SMALL = ["frames=130", "warmup_frames=100", "env.max_steps=30", "eval.episodes=2", "batch_size=16",
+         "logger.record_every_evaluations=0", "hydra/launcher=population", "hydra.launcher.n_jobs=1"]
+
+
+def _jobs(tmp_path, **jobs: tuple[int, list[int]]) -> list[str]:
+    """Overrides sweeping a config group ``job`` whose options set a seed and a network each (the way to
+    give one -m command groups of different sizes): ``name=(seed, hidden)``."""
+    folder = tmp_path / "conf" / "job"
+    folder.mkdir(parents=True)
+    for name, (seed, hidden) in jobs.items():
+        (folder / f"{name}.yaml").write_text(f"# @package _global_\nseed: {seed}\nhidden: {hidden}\n")
+    return [f"hydra.searchpath=[file://{tmp_path / 'conf'}]", f"+job={','.join(jobs)}"]
+
+
+def _multirun(tmp_path, monkeypatch, capsys, *overrides: str, fails: bool = False) -> tuple[list, str]:
+    """The JobReturns of ``aia-train -m ...`` and what it printed (``fails``: Hydra reports a failed job at
+    the end of the sweep with exit status 2)."""
+    returns = []
+    # the launcher class Hydra's plugin scan found (the scan imports the module afresh)
+    launcher = Plugins.instance().class_name_to_class[LAUNCHER]
+    launch = launcher.launch
+
+    def spy(self, job_overrides, initial_job_idx):
+        returns.extend(launch(self, job_overrides, initial_job_idx))
+        return returns
+
+    monkeypatch.setattr(launcher, "launch", spy)
+    monkeypatch.setattr(sys, "argv", ["aia-train", "-m", f"hydra.sweep.dir={tmp_path / 'sweep'}", *SMALL, *overrides])
+    capsys.readouterr()
+    if fails:
+        with pytest.raises(SystemExit) as info:
+            train_app.main()
+        assert info.value.code == 2
+    else:
+        train_app.main()
+    return returns, capsys.readouterr().out
+
+
+def test_one_sweep_trains_a_2_and_a_3_member_population(tmp_path, monkeypatch, capsys):
+    jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [16]), c=(2, [24]), d=(3, [24]), e=(4, [24]))
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs)
+    assert "5 jobs in 2 population(s) of 2, 3 member(s)" in out
+    assert "as a population of 2, seeds [0, 1]" in out and "as a population of 3, seeds [2, 3, 4]" in out
+    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 5
+    assert [r.hydra_cfg.hydra.job.num for r in returns] == [0, 1, 2, 3, 4]
+    for job, ret in enumerate(returns):
+        folder = tmp_path / "sweep" / str(job)
+        assert ret.working_dir and (folder / "checkpoints" / "last.pt").is_file()
+        overrides = yaml.safe_load((folder / ".hydra" / "overrides.yaml").read_text())
+        assert f"+job={'abcde'[job]}" in overrides
+        run = read_run(folder / "run.mcap")
+        assert run.complete and run.config_value("seed") == job
+        assert run.config_value("hidden") == ([16] if job < 2 else [24])
+        assert ret.return_value == pytest.approx(run.scalars("eval/score").values[-1])  # the search objective
+    assert (tmp_path / "sweep" / "multirun.yaml").is_file()
+
+
+def test_a_mixed_sweep_splits_and_says_which_key_kept_a_job_apart(tmp_path, monkeypatch, capsys):
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,5e-4", "hidden=[16],[24]")
+    assert "8 jobs in 2 population(s) of 4, 4 member(s)" in out
+    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 8
+
+
+def test_a_member_with_a_bad_value_fails_alone(tmp_path, monkeypatch, capsys):
+    returns, _ = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,-1", fails=True)
+    assert [r.status for r in returns] == [JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.COMPLETED,
+                                           JobStatus.FAILED]
+    assert "lr=-1" in str(returns[1]._return_value)
+    sweep = tmp_path / "sweep"
+    assert read_run(sweep / "0" / "run.mcap").complete and not (sweep / "1" / "run.mcap").exists()
+
+
+def test_a_job_that_differs_from_all_others_runs_alone_and_says_why(tmp_path, monkeypatch, capsys):
+    jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [16]), c=(2, [24]))
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs)
+    assert "job 2 runs alone: its hidden=[24] differs from job 0's [16]" in out
+    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 3

@@ -1,0 +1,25 @@
+"""ARVI returns the plans recorded from the planner before issue 16's rewrite (``data/arvi_plans.pt``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from aia.envs import make_env
+from aia.planners import ARVIConfig, ARVIPlanner
+
+RECORDED = torch.load(Path(__file__).parent / "data" / "arvi_plans.pt", weights_only=True)
+
+
+@pytest.mark.parametrize("case", sorted(RECORDED["cases"]))
+@pytest.mark.parametrize("setting", sorted(RECORDED["settings"]))
+def test_plans_equal_the_recorded_ones(setting, case):
+    recorded = RECORDED["settings"][setting]
+    state, expected = recorded["state"], recorded["plans"][case]
+    planner = ARVIPlanner(make_env(setting, transforms=False), ARVIConfig(**RECORDED["cases"][case]))
+    result = planner.plan(state["pose"], state["mean"], state["cov"])
+    assert torch.equal(result.actions, expected["actions"])
+    assert torch.equal(result.nodes, expected["nodes"]) and result.passes == expected["passes"]
+    torch.testing.assert_close(result.cost, expected["cost"], rtol=1e-12, atol=1e-9)

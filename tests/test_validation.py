@@ -1,0 +1,38 @@
+"""aia.validation accepts every shipped preset and refuses cross-field mistakes by name."""
+
+from __future__ import annotations
+
+import pytest
+from hydra import compose, initialize_config_module
+
+from aia.errors import ConfigError
+from aia.validation import validate_eval_config, validate_rollout_config, validate_train_config
+
+PRESETS = [[], ["experiment=paper_obstacles1", "method=adfq_ts"], ["experiment=paper_small3", "method=ddqn"],
+           ["env=small2_2019", "algo=adfq", "logger=csv"], ["logger=none", "eval.per_rollout=50"]]
+
+
+def _compose(name: str, overrides: list[str]):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        return compose(config_name=name, overrides=overrides)
+
+
+@pytest.mark.parametrize("overrides", PRESETS, ids=[" ".join(p) or "default" for p in PRESETS])
+def test_shipped_train_presets_are_valid(overrides):
+    validate_train_config(_compose("train", overrides))
+
+
+def test_eval_and_rollout_defaults_are_valid(tmp_path):
+    validate_eval_config(_compose("eval", ["policy=arvi", "env=obstacles1"]), ["policy=arvi", "env=obstacles1"])
+    validate_rollout_config(_compose("rollout", ["env=small3_2019"]))
+
+
+def test_cross_field_rules_name_both_fields():
+    cfg = _compose("train", ["algo=adfq", "algo.sd_max=1e-6"])
+    with pytest.raises(ConfigError, match=r"algo.sd_max=1e-06: expected a value whose square exceeds algo.var_min"):
+        validate_train_config(cfg)
+    cfg = _compose("train", ["exploration.eps_end=2"])
+    with pytest.raises(ConfigError, match=r"exploration.eps_end=2: expected a number >= 0 and <= 1"):
+        validate_train_config(cfg)
+    error = ConfigError("lr", -1.0, "a number > 0", source="conf.yaml")
+    assert str(error) == "conf.yaml: lr=-1.0: expected a number > 0" and error.key == "lr"

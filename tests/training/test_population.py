@@ -1,0 +1,111 @@
+"""A population member is the solo run with its seed: same evaluations before learning, same losses and
+parameters over 100 updates; a neighbour's seed or learning rate changes nothing of it; checkpoints resume
+every member; members that differ in a shared key are refused with the key named."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hydra import compose, initialize_config_module
+
+import aia.training.optimizer as optimizer
+from aia.logging import read_run
+from aia.training import PopulationError, train, train_population
+
+SMALL = ("env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16", "hidden=[32,32]")
+UNLOGGED = (*SMALL, "logger=none")
+
+
+def _config(*overrides: str):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        return compose(config_name="train", overrides=list(overrides))
+
+
+def _recording_losses(monkeypatch) -> list[torch.Tensor]:
+    """Every update's [P] member losses, in order."""
+    recorded: list[torch.Tensor] = []
+    call = optimizer.Updater.__call__
+
+    def spy(self, batch):
+        losses = call(self, batch)
+        recorded.append(losses.clone())
+        return losses
+
+    monkeypatch.setattr(optimizer.Updater, "__call__", spy)
+    return recorded
+
+
+def _online(run_dir) -> dict[str, torch.Tensor]:
+    return torch.load(run_dir / "checkpoints" / "last.pt", weights_only=False)["online"]
+
+
+@pytest.mark.parametrize("algo, exploration", [("dqn", "egreedy"), ("adfq", "thompson")])
+def test_a_member_is_the_solo_run_with_its_seed(tmp_path, monkeypatch, algo, exploration):
+    # 199 frames: the first 100 updates (from frame 100); evaluations every 40-frame episode
+    common = (f"algo={algo}", f"exploration={exploration}", "frames=199", *SMALL, "logger.record_every_evaluations=0")
+    losses = _recording_losses(monkeypatch)
+    solo = train(_config(*common, "seed=7"), tmp_path / "solo")
+    solo_losses = torch.stack(losses)[:, 0]
+    losses.clear()
+    members = train_population([_config(*common, f"seed={s}") for s in (3, 7, 11)],
+                               [tmp_path / f"m{s}" for s in (3, 7, 11)])
+    member_losses = torch.stack(losses)[:, 1]
+    assert len(solo_losses) == 100 and solo.updates == 100
+    # (a) evaluations before the first update (frames 40 and 80) are the solo run's, exactly
+    assert members[1].eval_scores[:2] == solo.eval_scores[:2]
+    # (b) over the first 100 updates losses and parameters match to 1e-4 relative
+    torch.testing.assert_close(member_losses, solo_losses, rtol=1e-4, atol=1e-6)
+    solo_params, member_params = _online(tmp_path / "solo"), _online(tmp_path / "m7")
+    for name, value in solo_params.items():
+        torch.testing.assert_close(member_params[name], value, rtol=1e-4, atol=1e-6)
+    assert members[0].eval_scores != members[1].eval_scores  # the members are different learners
+    # every member has its own log with its own seed, like a solo run's
+    for seed in (3, 7, 11):
+        run = read_run(tmp_path / f"m{seed}" / "run.mcap")
+        assert run.complete and run.config_value("seed") == seed and run.metadata["run"]["seed"] == str(seed)
+    assert read_run(tmp_path / "m7" / "run.mcap").scalars("eval/score").values.tolist() == pytest.approx(
+        members[1].eval_scores)
+
+
+def test_a_neighbours_seed_or_learning_rate_changes_nothing_of_a_member_bit_for_bit(tmp_path, monkeypatch):
+    common = ("frames=199", *UNLOGGED)
+    losses = _recording_losses(monkeypatch)
+    runs = {}
+    for name, first in (("base", ("seed=0", "lr=1e-3")), ("seed", ("seed=5", "lr=1e-3")),
+                        ("lr", ("seed=0", "lr=3e-2"))):
+        losses.clear()
+        states = train_population([_config(*common, *first), _config(*common, "seed=1", "lr=1e-3")],
+                                  [tmp_path / name / "0", tmp_path / name / "1"])
+        runs[name] = (torch.stack(losses), states, _online(tmp_path / name / "1"))
+    base_losses, base_states, base_params = runs["base"]
+    for name in ("seed", "lr"):
+        other_losses, other_states, other_params = runs[name]
+        assert torch.equal(other_losses[:, 1], base_losses[:, 1])
+        assert other_states[1].eval_scores == base_states[1].eval_scores
+        assert all(torch.equal(other_params[k], v) for k, v in base_params.items())
+        assert not torch.equal(other_losses[:, 0], base_losses[:, 0])  # member 0 did change
+
+
+def test_a_population_resumes_every_member_from_its_checkpoint(tmp_path):
+    common = ("algo=adfq", "exploration=thompson", *UNLOGGED, "eval.every_episodes=2")
+    seeds = (0, 1)
+    whole = train_population([_config(*common, "frames=320", f"seed={s}") for s in seeds],
+                             [tmp_path / "whole" / str(s) for s in seeds])
+    train_population([_config(*common, "frames=160", f"seed={s}") for s in seeds],
+                     [tmp_path / "first" / str(s) for s in seeds])
+    resumed = train_population(
+        [_config(*common, "frames=320", f"seed={s}", f"resume={tmp_path / 'first' / str(s) / 'checkpoints/last.pt'}")
+         for s in seeds], [tmp_path / "second" / str(s) for s in seeds])
+    for before, after in zip(whole, resumed, strict=True):
+        assert (after.frames, after.updates, after.episodes, after.evaluations) == (
+            before.frames, before.updates, before.episodes, before.evaluations)
+        # an episode boundary at frame 160: the resumed run meets the same worlds, draws and replay
+        assert after.eval_scores == pytest.approx(before.eval_scores, rel=1e-4)
+
+
+def test_members_that_differ_in_a_shared_key_are_refused_with_the_key(tmp_path):
+    with pytest.raises(PopulationError, match=r"differ in hidden \(\[32, 32\] vs \[64, 64\]\)"):
+        train_population([_config(*UNLOGGED, "seed=0"), _config(*UNLOGGED, "seed=1", "hidden=[64,64]")],
+                         [tmp_path / "a", tmp_path / "b"])
+    with pytest.raises(PopulationError, match=r"differ in env.map \('empty' vs 'empty_small'\)"):
+        train_population([_config(*UNLOGGED), _config(*UNLOGGED, "env=small2")], [tmp_path / "a", tmp_path / "b"])
