@@ -2,9 +2,10 @@
 
 1. Updates: one Adam step (loss, backward, gradient clipping, target-update bookkeeping;
    ``aia.training.optimizer.Updater``, the training loop's, for a population of one) on a batch of 64
-   transitions with the replay buffer's keys (each update gets a fresh copy, made outside the timing), for DQN, Double DQN and ADFQ, on the 1-target network (3 x 128, 8 inputs)
-   and the 3-target network (3 x 256, 20 inputs), eager and compiled (``compile.update=true``); median over
-   5 windows, and the compiled variant's first call (compilation).
+   transitions with the replay buffer's keys (each update gets a fresh copy, made outside the timing), for
+   DQN, Double DQN and ADFQ, on the 1-target network (3 x 128, 8 inputs) and the 3-target network
+   (3 x 256, 20 inputs), eager and compiled (``compile.update=true``); median over 5 windows, and the
+   compiled variant's first call (compilation).
 2. Loop: ``aia.training.train`` in the paper's regime (one world, one update per frame, evaluation after
    every episode, ``eval.per_rollout`` of them played per batched rollout), eager and with every
    ``compile.*`` switch on: frames per second of the updating frames (the bulk of a long run; median of

@@ -23,7 +23,9 @@ from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, 
 from mcap.stream_reader import StreamReader
 
 from aia.logging import schemas
+from aia.logging.mcap_logger import STATUS_METADATA
 from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, SceneFrame, WorldInfo, parse_frame, parse_world
+from aia.logging.segments import RESUMED_AFTER_KEY, is_later_segment, later_segments
 
 
 class RunLogError(ValueError):
@@ -60,6 +62,7 @@ class RunLog:
     complete: bool = True          # the footer was read
     skipped_chunks: int = 0        # chunks dropped for a bad CRC or a broken compression
     problem: str | None = None     # why reading stopped before the footer
+    segments: list[Path] = field(default_factory=list)  # later segments joined in (one per resume)
     _config: dict[str, Any] | None = field(default=None, init=False, repr=False)
 
     @property
@@ -151,8 +154,25 @@ class RunLog:
 
 
 def read_run(path: str | Path) -> RunLog:
-    """Read every message, metadata record and attachment of the MCAP file at ``path``."""
+    """Read every message, metadata record and attachment of the run log at ``path``, joined with its later
+    segments (:mod:`aia.logging.segments`: one per resume) into one history."""
     path = Path(path)
+    run = _read_file(path)
+    for segment in later_segments(path):
+        part = _read_file(segment)
+        after = int(part.metadata.get("run", {}).get(RESUMED_AFTER_KEY, 0))
+        run.messages = [m for m in run.messages if m.log_time <= after] + part.messages
+        # the last segment says how the run ended; the latest config is the one in force
+        run.metadata = {k: v for k, v in run.metadata.items() if k != STATUS_METADATA} | part.metadata
+        run.attachments |= part.attachments
+        run.complete, run.problem = part.complete, part.problem
+        run.skipped_chunks += part.skipped_chunks
+        run.segments.append(segment)
+    return run
+
+
+def _read_file(path: Path) -> RunLog:
+    """Read every message, metadata record and attachment of the MCAP file at ``path``."""
     if not path.is_file():
         raise RunLogError(f"{path}: no such file")
     try:
@@ -223,8 +243,8 @@ def find_runs(patterns: list[str]) -> list[Path]:
     for pattern in patterns:
         matches = [Path(p) for p in sorted(glob.glob(pattern, recursive=True))] or [Path(pattern)]
         for match in matches:
-            if match.is_dir():
-                found.extend(sorted(match.rglob("*.mcap")))
+            if match.is_dir():  # a run's later segments are read with its first one
+                found.extend(p for p in sorted(match.rglob("*.mcap")) if not is_later_segment(p))
             elif match.exists():
                 found.append(match)
             else:

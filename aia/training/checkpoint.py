@@ -9,6 +9,7 @@ member's file, and a member may resume alone or inside another population.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +48,7 @@ def member_checkpoint(parts: PopulationParts, member: int, cfg: DictConfig, stat
     worlds = parts.world_episodes.shape[0] // parts.optimizer.params[0].shape[0]
     return {
         "config": OmegaConf.to_container(cfg, resolve=True),
+        "saved_at_ns": time.time_ns(),  # a resumed run's log drops what the log it continues wrote later
         "state": state,
         "actor": actor_state,
         "online": {k: v[member].detach().clone() for k, v in _flat(parts.online).items()},

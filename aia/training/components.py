@@ -14,6 +14,7 @@ from torchrl.record.loggers import Logger
 from torchrl.record.loggers.csv import CSVLogger
 
 from aia.logging import MCAPLogger, SceneRecorder
+from aia.logging.segments import RESUMED_AFTER_KEY, next_segment
 from aia.losses import ADFQLoss
 from aia.modules import ADFQNetwork, StackedQNetwork, make_q_network
 from aia.modules.q_networks import make_qvalue_actor
@@ -56,18 +57,22 @@ def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:
     return loss
 
 
-def make_logger(cfg: DictConfig, out_dir: Path) -> Logger | None:
-    """TorchRL logger of one run (``logger=mcap``, ``logger=csv`` or ``logger=none``); it gets the config."""
+def make_logger(cfg: DictConfig, out_dir: Path, resumed_after_ns: int | None = None) -> Logger | None:
+    """TorchRL logger of one run (``logger=mcap``, ``logger=csv`` or ``logger=none``); it gets the config.
+
+    A resumed run (``resumed_after_ns``: when its checkpoint was written) whose MCAP log exists writes the
+    log's next segment (:mod:`aia.logging.segments`), read back with the first as one history."""
     if cfg.logger.name == "none":
         return None
     if cfg.logger.name == "csv":
         logger = CSVLogger(exp_name="csv", log_dir=str(out_dir))
     elif cfg.logger.name == "mcap":
+        resumed = {RESUMED_AFTER_KEY: resumed_after_ns} if resumed_after_ns is not None else {}
         logger = MCAPLogger(
             exp_name=f"{cfg.algo.name}-{cfg.exploration.name}-seed{cfg.seed}", log_dir=out_dir,
-            file_name=cfg.logger.file, compression=cfg.logger.compression, chunk_size=cfg.logger.chunk_size,
-            flush_interval_s=cfg.logger.flush_interval_s,
-            run_metadata={"seed": cfg.seed, "algo": cfg.algo.name, "exploration": cfg.exploration.name},
+            file_name=next_segment(out_dir / cfg.logger.file).name, compression=cfg.logger.compression,
+            chunk_size=cfg.logger.chunk_size, flush_interval_s=cfg.logger.flush_interval_s,
+            run_metadata={"seed": cfg.seed, "algo": cfg.algo.name, "exploration": cfg.exploration.name, **resumed},
         )
     else:
         raise ValueError(f"logger={cfg.logger.name!r} is not one of ['mcap', 'csv', 'none']")

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import gc
 import math
+import signal
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -104,18 +105,27 @@ def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop:
     for cfg in cfgs:
         validate_train_config(cfg)
     check_population(cfgs)
+    out_dirs = [Path(d) for d in out_dirs]
+    checkpoints = _checkpoints(list(cfgs), out_dirs)
     loggers: list[Logger | None] = []
     try:
-        loggers += [make_logger(cfg, Path(out_dir)) for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
-        return _train(list(cfgs), [Path(d) for d in out_dirs], loggers, stop)
+        loggers += [make_logger(cfg, out_dir, resumed_after_ns=checkpoint["saved_at_ns"] if checkpoint else None)
+                    for cfg, out_dir, checkpoint in zip(cfgs, out_dirs, checkpoints, strict=True)]
+        states = _train(list(cfgs), out_dirs, loggers, stop, checkpoints)
+        if stop is not None and stop.signal:
+            for logger in loggers:
+                if isinstance(logger, MCAPLogger):
+                    logger.mark_failed(f"{signal.Signals(stop.signal).name} at frame {states[0].frames}: "
+                                       "checkpoint written (resume=auto continues)", status="stopped")
+        return states
     finally:
         for logger in loggers:
             if logger:
                 logger.close()
 
 
-def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | None], stop: StopOnSignals | None
-           ) -> list[TrainingState]:
+def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | None], stop: StopOnSignals | None,
+           checkpoints: list[dict | None]) -> list[TrainingState]:
     cfg = cfgs[0]  # the shared settings
     P, W = len(cfgs), cfg.collector.num_envs
     seeds = [int(c.seed) for c in cfgs]
@@ -146,7 +156,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     world_episodes = torch.zeros(P * W, dtype=torch.int64)
     parts = PopulationParts(loss.value_network_params, loss.target_value_network_params, optimizer, policy, replay,
                             target_updater, world_episodes)
-    shared, scores = _resume(cfgs, out_dirs, parts)
+    shared, scores = _resume(checkpoints, parts)
     # member k's worlds are a solo run's worlds with its seed (episode counters as checkpointed)
     base_env.replay_streams(torch.tensor(seeds).repeat_interleave(W), torch.arange(W).repeat(P), world_episodes)
     recorders = make_recorders(cfg, loggers, eval_env)
@@ -174,7 +184,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     # read once: an attribute of an OmegaConf config costs about 7 us, several times a frame's budget share
     warmup_frames, updates_per_frame = cfg.warmup_frames, cfg.updates_per_frame
     checkpoint_every, eval_every = cfg.checkpoint_every_frames, cfg.eval.every_episodes
-    checkpoint_every_s, last_checkpoint = cfg.checkpoint_every_s, time.monotonic()
+    checkpoint_every_s, last_checkpoint, checkpoint_due = cfg.checkpoint_every_s, time.monotonic(), False
     max_steps = env_config.max_steps
     episode_step = 0  # steps into the current episode (all worlds in lockstep; a resumed run starts afresh)
     first_update = True
@@ -224,14 +234,19 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
                     if shared.updates % 100 == 0:
                         run.log_training(losses, policy)
             bar.update(W)
-            if stop is not None and stop.signal:
-                break  # then as at the end of the budget: pending evaluations, checkpoints
-            if shared.frames % checkpoint_every < W or time.monotonic() - last_checkpoint >= checkpoint_every_s:
+            # Checkpoints (and a stop on a signal) wait for the end of the current episode, so that a resumed
+            # run continues exactly as the uninterrupted one (no episode is cut and replayed differently).
+            checkpoint_due |= shared.frames % checkpoint_every < W
+            checkpoint_due |= time.monotonic() - last_checkpoint >= checkpoint_every_s
+            stopping = stop is not None and stop.signal is not None
+            if episode_step == 0 and (checkpoint_due or stopping):
+                if stopping:
+                    break  # then as at the end of the budget: pending evaluations, checkpoints
                 with timer("evaluate"):
                     run.evaluate()  # a checkpoint keeps no pending evaluation
                 with timer("checkpoint"):
                     run.save(base_env, episode_step)
-                last_checkpoint = time.monotonic()
+                checkpoint_due, last_checkpoint = False, time.monotonic()
         with timer("evaluate"):
             run.evaluate()
     finally:
@@ -245,26 +260,33 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     return run.states()
 
 
-def _resume(cfgs: list[DictConfig], out_dirs: list[Path], parts: PopulationParts
-            ) -> tuple[TrainingState, list[list[float]]]:
-    """The shared counters and each member's scores, from the members' checkpoints (:mod:`.resuming`: all
-    members resume, from the same frame, or none)."""
+def _checkpoints(cfgs: list[DictConfig], out_dirs: list[Path]) -> list[dict | None]:
+    """Each member's checkpoint to resume from (:mod:`.resuming`), all from the same point, or none at all."""
     paths = [resume_path(cfg, out_dir) for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
     if not any(paths):
-        return TrainingState(), [[] for _ in cfgs]
+        return [None] * len(cfgs)
     if not all(paths):
         missing = [str(out_dirs[k]) for k, path in enumerate(paths) if path is None]
         raise ConfigError("resume", [str(p) for p in paths], "a checkpoint for every member of a population or for "
                           f"none (none for {', '.join(missing)})")
+    checkpoints = [load_resumable(path, cfg, cfgs[0].device) for cfg, path in zip(cfgs, paths, strict=True)]
+    points = [tuple(c["state"][k] for k in ("frames", "updates", "episodes", "evaluations")) for c in checkpoints]
+    if len(set(points)) > 1:
+        raise ConfigError("resume", [str(p) for p in paths], "checkpoints of one point of a population (their "
+                          f"frames: {[point[0] for point in points]})")
+    for path, checkpoint in zip(paths, checkpoints, strict=True):
+        print(f"resuming from {path} at frame {checkpoint['state']['frames']}")
+    return checkpoints
+
+
+def _resume(checkpoints: list[dict | None], parts: PopulationParts) -> tuple[TrainingState, list[list[float]]]:
+    """The shared counters and each member's scores, with the members' checkpoints loaded into ``parts``."""
+    if checkpoints[0] is None:
+        return TrainingState(), [[] for _ in checkpoints]
     states = []
-    for member, (cfg, path) in enumerate(zip(cfgs, paths, strict=True)):
-        checkpoint = load_resumable(path, cfg, cfgs[0].device)
+    for member, checkpoint in enumerate(checkpoints):
         load_member(parts, member, checkpoint)
         states.append(TrainingState(**checkpoint["state"]))
-        print(f"resumed from {path} at frame {states[-1].frames} (the interrupted episode starts afresh)")
-    if len({(s.frames, s.updates, s.episodes, s.evaluations) for s in states}) > 1:
-        raise ConfigError("resume", [str(p) for p in paths], "checkpoints of one point of a population (their "
-                          f"frames: {[s.frames for s in states]})")
     return replace(states[0], eval_scores=[]), [s.eval_scores for s in states]
 
 

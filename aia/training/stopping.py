@@ -2,8 +2,10 @@
 SLURM's ``--signal``) and Ctrl-C (SIGINT).
 
 :class:`StopOnSignals` only records the signal; the training loop checks :attr:`StopOnSignals.signal` after
-every step and then ends as at the end of its budget: it plays the pending evaluations, writes every member's
-checkpoint and closes the logs. The app then exits with status ``128 + signal`` (143 for SIGTERM).
+every step and, at the end of the current episode (at most ``env.max_steps`` steps: a fraction of a second
+for one learner, a few seconds for a large population), ends as at the end of its budget: it plays the
+pending evaluations, writes every member's checkpoint, marks the logs stopped and closes them. The app then
+exits with status ``128 + signal`` (143 for SIGTERM).
 """
 
 from __future__ import annotations

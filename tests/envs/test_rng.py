@@ -205,3 +205,30 @@ def test_episode_keys_distinct_per_episode():
     ek = rng.episode_keys(key, eps)
     assert torch.unique(ek).numel() == 500
     assert ek.min().item() >= 0 and ek.max().item() < 2**32
+
+
+# --------------------------------------------------------------- seed keys
+def test_seed_keys_one_per_seed_independent_of_the_others():
+    keys = rng.seed_keys([5, 6, 2**40 + 7], purpose=1)
+    assert keys.shape == (3,) and keys.dtype == torch.int64
+    assert keys.min().item() >= 0 and keys.max().item() < 2**32
+    for i, seed in enumerate([5, 6, 2**40 + 7]):  # a seed's key does not depend on the seeds beside it
+        assert torch.equal(rng.seed_keys([seed], purpose=1)[0], keys[i])
+        assert torch.equal(rng.seed_keys([9, seed, 9], purpose=1)[1], keys[i])
+    assert torch.equal(rng.seed_keys([6, 5], purpose=1), keys[[1, 0]])
+    assert rng.seed_keys([2**40 + 7], 1)[0] != rng.seed_keys([7], 1)[0]  # the seed's high bits matter
+    assert torch.unique(rng.seed_keys(list(range(1000)), purpose=1)).numel() == 1000
+
+
+def test_seed_keys_of_different_purposes_are_apart_from_each_other_and_from_the_world_streams():
+    seeds = list(range(50))
+    by_purpose = [rng.seed_keys(seeds, purpose) for purpose in range(4)]
+    world = torch.stack([rng.world_keys(seed, 1)[0] for seed in seeds])
+    everything = torch.cat(by_purpose + [world])
+    assert torch.unique(everything).numel() == everything.numel()  # 250 distinct 32-bit keys
+    # and their draws are uncorrelated: purpose 1 vs purpose 2 of the same seeds
+    counter = torch.zeros(50, dtype=torch.int64)
+    u1 = rng.uniform(by_purpose[1], counter, 0, 200, torch.float64).flatten()
+    u2 = rng.uniform(by_purpose[2], counter, 0, 200, torch.float64).flatten()
+    assert abs(np.corrcoef(u1.numpy(), u2.numpy())[0, 1]) < 5 / math.sqrt(u1.numel())
+    assert torch.equal(rng.seed_keys(seeds, 3, device="cpu"), by_purpose[3])

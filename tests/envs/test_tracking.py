@@ -215,6 +215,29 @@ def test_replay_streams_reproduces_later_episodes_of_a_smaller_env():
         big.replay_streams(3, torch.zeros(3, dtype=torch.int64), torch.zeros(4, dtype=torch.int64))
 
 
+def test_replay_streams_with_one_seed_per_world_replays_several_envs_in_one():
+    config = load_env_config("obstacles1")
+    smalls = {seed: TargetTrackingEnv(config, batch_size=2, seed=seed) for seed in (3, 5)}
+    episodes = {seed: [env.reset() for _ in range(3)] for seed, env in smalls.items()}  # episodes 1-3
+    plan = [(3, 1, 2), (5, 0, 0), (5, 1, 1), (3, 0, 0)]  # (seed, world, episodes before) of each big world
+    seeds, worlds, before = (torch.tensor(column) for column in zip(*plan, strict=True))
+    big = TargetTrackingEnv(config, batch_size=4, seed=99)
+    for given in (seeds, seeds.tolist()):  # a tensor or a list of seeds
+        big.replay_streams(given, worlds=worlds, episodes=before)
+        replayed = big.reset()
+        for b, (seed, world, episode) in enumerate(plan):
+            for key in ("robot_pose", "target_state", "belief_mean"):
+                assert torch.equal(replayed[key][b], episodes[seed][episode][key][world]), (b, key)
+    # one seed for every world is the same as that seed repeated
+    big.replay_streams(3, worlds=worlds, episodes=before)
+    one = big.reset()
+    big.replay_streams([3] * 4, worlds=worlds, episodes=before)
+    assert torch.equal(big.reset()["target_state"], one["target_state"])
+    assert not torch.equal(one["target_state"], replayed["target_state"])
+    with pytest.raises(ValueError, match=r"seed must be 4 non-negative integers.*\[3, -5, 5, 3\]"):
+        big.replay_streams([3, -5, 5, 3], worlds=worlds, episodes=before)
+
+
 def test_same_seed_same_rollout_and_batch_size_independence():
     def rollout(seed, batch_size):
         env = make_env("small2", batch_size=batch_size, seed=seed)

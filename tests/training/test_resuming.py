@@ -1,0 +1,83 @@
+"""Preemption: a signal ends the run at the end of its episode with every evaluation, a checkpoint and a log
+marked stopped; resume=auto continues in the same folder into the log's next segment, and the joined history
+is the uninterrupted run's (counters, evaluation frames, scores); checkpoints of another run are refused."""
+
+from __future__ import annotations
+
+import signal
+
+import pytest
+import torch
+from hydra import compose, initialize_config_module
+
+from aia.errors import ConfigError
+from aia.logging import find_runs, read_run
+from aia.training import train
+from aia.training.stopping import StopOnSignals
+
+SMALL = ("env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16", "hidden=[32,32]",
+         "algo=adfq", "exploration=thompson")
+LOGGED = (*SMALL, "logger.record_every_evaluations=0")
+
+
+def _config(*overrides: str):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        return compose(config_name="train", overrides=list(overrides))
+
+
+class SignalAfter(StopOnSignals):
+    """A SIGTERM that arrives after the loop's ``steps``-th step (the loop reads ``signal`` once a step)."""
+
+    def __init__(self, steps: int) -> None:
+        super().__init__()
+        self.reads = steps
+
+    @property
+    def signal(self) -> int | None:
+        self.reads -= 1
+        return signal.SIGTERM if self.reads < 0 else None
+
+    @signal.setter
+    def signal(self, value: int | None) -> None:
+        pass
+
+
+def test_a_signal_ends_the_episode_then_checkpoints_and_resume_auto_continues_one_history(tmp_path):
+    whole = train(_config(*LOGGED, "frames=240"), tmp_path / "whole")
+    stopped = train(_config(*LOGGED, "frames=240"), tmp_path / "run", stop=SignalAfter(130))
+    assert stopped.frames == 160  # the episode under way at the signal (frames 121-160) was finished
+    assert len(stopped.eval_scores) == 4 and stopped.eval_scores == whole.eval_scores[:4]
+    first = read_run(tmp_path / "run" / "run.mcap")
+    assert first.complete and first.failure.startswith("stopped: SIGTERM at frame 160")
+    checkpoint = torch.load(tmp_path / "run" / "checkpoints" / "last.pt", weights_only=False)
+    assert checkpoint["state"]["frames"] == 160
+
+    resumed = train(_config(*LOGGED, "frames=240", "resume=auto"), tmp_path / "run")
+    assert (resumed.frames, resumed.updates, resumed.episodes, resumed.evaluations) == (
+        whole.frames, whole.updates, whole.episodes, whole.evaluations)
+    assert resumed.eval_scores == pytest.approx(whole.eval_scores, rel=1e-5)
+    assert (tmp_path / "run" / "run.1.mcap").is_file()
+    joined, alone = read_run(tmp_path / "run" / "run.mcap"), read_run(tmp_path / "whole" / "run.mcap")
+    assert joined.complete and joined.failure is None and len(joined.segments) == 1
+    for topic in ("eval/score", "train/score"):
+        assert joined.scalars(topic).frames.tolist() == alone.scalars(topic).frames.tolist()
+    assert joined.scalars("eval/score").values.tolist() == pytest.approx(alone.scalars("eval/score").values, rel=1e-5)
+    assert find_runs([str(tmp_path / "run")]) == [tmp_path / "run" / "run.mcap"]  # one run, not two
+
+
+def test_resume_auto_without_a_checkpoint_starts_fresh(tmp_path):
+    state = train(_config(*SMALL, "frames=120", "resume=auto", "logger=none"), tmp_path)
+    assert state.frames == 120 and (tmp_path / "checkpoints" / "last.pt").is_file()
+
+
+def test_a_checkpoint_of_another_run_is_refused_naming_each_difference(tmp_path):
+    train(_config(*SMALL, "frames=120", "logger=none"), tmp_path / "a")
+    path = tmp_path / "a" / "checkpoints" / "last.pt"
+    with pytest.raises(ConfigError, match=r"differs in env.map \('empty' in the checkpoint, 'empty_small' now\)"
+                                          r".*hidden \(\[32, 32\] in the checkpoint, \[64\] now\)"):
+        train(_config(*SMALL, "frames=200", "env=small2", "hidden=[64]", "logger=none", f"resume={path}"),
+              tmp_path / "b")
+    broken = tmp_path / "broken.pt"
+    broken.write_text("not a checkpoint")
+    with pytest.raises(ConfigError, match=f"resume='{broken}': expected a readable aia-train checkpoint"):
+        train(_config(*SMALL, "frames=200", "logger=none", f"resume={broken}"), tmp_path / "c")
