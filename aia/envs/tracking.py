@@ -182,7 +182,9 @@ class TargetTrackingEnv(EnvBase):
         """
         B = self.batch_size[0]
         worlds, episodes = torch.as_tensor(worlds), torch.as_tensor(episodes)
-        seeds = torch.as_tensor(seed, dtype=torch.int64).expand(B) if not isinstance(seed, int) else None
+        seeds = None if isinstance(seed, int) else torch.as_tensor(seed)
+        if seeds is not None and seeds.ndim == 0:
+            seeds = seeds.expand(B)
         for name, value in (("worlds", worlds), ("episodes", episodes), ("seed", seeds)):
             if value is None:
                 continue

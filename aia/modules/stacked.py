@@ -69,6 +69,9 @@ class StackedQNetwork(nn.Module):
         shapes = [[tuple(linear.weight.shape) for linear in linears] for linears, _ in layers]
         if any(shape != shapes[0] for shape in shapes) or any(act is not activation for _, act in layers):
             raise ValueError(f"the members' networks differ in architecture: {sorted(set(map(str, shapes)))}")
+        kinds = {(type(n).__name__, getattr(n, "log_sd_min", None), getattr(n, "log_sd_max", None)) for n in networks}
+        if len(kinds) > 1:
+            raise ValueError(f"the members' networks differ in kind or sd bounds: {sorted(map(str, kinds))}")
         weights = [torch.stack([linears[i].weight.detach().t() for linears, _ in layers]).contiguous()
                    for i in range(len(shapes[0]))]
         biases = [torch.stack([linears[i].bias.detach() for linears, _ in layers]).unsqueeze(1).contiguous()

@@ -59,13 +59,14 @@ class MemberReplay:
         return self.storage.get((rows, self.members))
 
     def member_state(self, member: int) -> dict:
-        """Member ``member``'s rows (oldest first), and its sampler's count: what a checkpoint keeps."""
-        order = (torch.arange(self.size) + (self.cursor if self.size == self.capacity else 0)) % self.capacity
-        rows = self.storage.get((order, torch.full_like(order, member))) if self.size else None
-        return {"transitions": rows.clone() if rows is not None else None, "draws": int(self.draws[member])}
+        """Member ``member``'s rows (in their storage order), the write cursor and its sampler's count: what
+        a checkpoint keeps (a restored buffer samples the same rows as the one saved)."""
+        index = torch.arange(self.size)
+        rows = self.storage.get((index, torch.full_like(index, member))).clone() if self.size else None
+        return {"transitions": rows, "cursor": self.cursor, "draws": int(self.draws[member])}
 
     def load_member_state(self, member: int, state: dict) -> None:
-        """Restore member ``member`` from :meth:`member_state` (every member must restore the same row count)."""
+        """Restore member ``member`` from :meth:`member_state` (every member must restore the same rows)."""
         rows: TensorDictBase | None = state["transitions"]
         count = 0 if rows is None else rows.batch_size[0]
         if count > self.capacity:
@@ -74,7 +75,7 @@ class MemberReplay:
             index = torch.arange(count)
             self._ensure_storage(rows)
             self.storage.set((index, torch.full_like(index, member)), rows.to(self.storage.device))
-        self.size, self.cursor = count, count % self.capacity
+        self.size, self.cursor = count, state["cursor"]
         self.draws[member] = state["draws"]
 
     def _ensure_storage(self, rows: TensorDictBase) -> None:

@@ -48,6 +48,8 @@ class SlurmJob:
 class SlurmCluster:
     """The running local cluster: submit ``aia-train`` sweeps to it and read its accounting."""
 
+    sweep_timeout_s = SWEEP_TIMEOUT_S  # how long a test waits for one of its sweeps
+
     @staticmethod
     def env() -> dict[str, str]:
         """The environment with this interpreter's console scripts (aia-train) first on PATH; jobs inherit it."""

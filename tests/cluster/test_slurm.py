@@ -1,12 +1,16 @@
 """``aia-train -m hydra/launcher=slurm`` on a real scheduler (the local cluster of scripts/slurm_local.sh):
-a sweep runs end to end, and a job that fails inside SLURM is reported as failed instead of waited on."""
+a sweep runs end to end, a job that fails inside SLURM is reported as failed instead of waited on, and a
+preempted job comes back and finishes its run through ``resume=auto``."""
 
 from __future__ import annotations
 
 import math
 import pickle
+import subprocess
+import time
 
 import pytest
+import torch
 import yaml
 
 from aia.logging import read_run
@@ -55,3 +59,47 @@ def test_a_job_that_fails_inside_slurm_is_reported_failed(slurm_cluster, tmp_pat
     [job] = slurm_cluster.jobs(name)
     assert (job.state, job.exit_code) == ("FAILED", "2:0")
     assert not (sweep_dir / "0" / "run.mcap").exists()
+
+
+def test_a_preempted_job_is_requeued_and_finishes_its_run_through_resume_auto(slurm_cluster, tmp_path):
+    """``scontrol requeue`` of a running job: SLURM sends SIGTERM, the run ends its episode with a checkpoint,
+    the job comes back (its 2-minute requeue delay cut short) with the same command, and ``resume=auto`` takes
+    it to the end: one history in the job's folder (two log segments), every evaluation once."""
+    sweep_dir = tmp_path / "sweep"
+    frames, steps = 1000, 50
+    overrides = (f"frames={frames}", "warmup_frames=50", f"env.max_steps={steps}", "eval.episodes=2",
+                 "logger.record_every_evaluations=0", "threads=1", "resume=auto", "seed=0")
+    name, command = slurm_cluster.sweep_command(sweep_dir, *overrides)
+    sweep = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env=slurm_cluster.env(), cwd=tmp_path)
+    try:
+        log = sweep_dir / "0" / "run.mcap"
+        deadline = time.monotonic() + slurm_cluster.sweep_timeout_s
+        while not (log.exists() and "eval/score" in read_run(log).scalar_topics()):
+            assert time.monotonic() < deadline and sweep.poll() is None, "the job logged no evaluation"
+            time.sleep(0.5)
+        job_id = _squeue(name)
+        subprocess.run(["scontrol", "requeue", job_id], check=True, timeout=30)
+        while _squeue(name, "%T") != "PENDING":  # requeued: pending until its begin time
+            assert time.monotonic() < deadline, f"the job did not come back pending: {slurm_cluster.queue()}"
+            time.sleep(0.5)
+        subprocess.run(["scontrol", "update", f"JobId={job_id}", "StartTime=now"], check=True, timeout=30)
+        _, err = sweep.communicate(timeout=max(1.0, deadline - time.monotonic()))
+    finally:
+        if sweep.poll() is None:
+            sweep.kill()
+            subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
+    assert sweep.returncode == 0, err[-3000:]
+    assert (sweep_dir / "0" / "run.1.mcap").is_file()  # the requeued job's segment
+    run = read_run(log)
+    assert run.complete and run.failure is None
+    assert run.scalars("eval/score").frames.tolist() == [float(steps * k) for k in range(1, frames // steps + 1)]
+    assert torch.load(sweep_dir / "0" / "checkpoints" / "last.pt", weights_only=False)["state"]["frames"] == frames
+    [job] = slurm_cluster.jobs(name)
+    assert job.state == "COMPLETED"
+
+
+def _squeue(name: str, field: str = "%i") -> str:
+    """One field of the queued job named ``name`` (its id by default; empty once it has left the queue)."""
+    return subprocess.run(["squeue", "--noheader", f"--name={name}", "--format", field], capture_output=True,
+                          text=True, check=True, timeout=30).stdout.strip()

@@ -236,6 +236,9 @@ def test_replay_streams_with_one_seed_per_world_replays_several_envs_in_one():
     assert not torch.equal(one["target_state"], replayed["target_state"])
     with pytest.raises(ValueError, match=r"seed must be 4 non-negative integers.*\[3, -5, 5, 3\]"):
         big.replay_streams([3, -5, 5, 3], worlds=worlds, episodes=before)
+    for bad in ([3, 5, 3], [1.7, 2.0, 3.0, 4.0]):  # one seed short; not integers
+        with pytest.raises(ValueError, match="seed must be 4 non-negative integers"):
+            big.replay_streams(bad, worlds=worlds, episodes=before)
 
 
 def test_same_seed_same_rollout_and_batch_size_independence():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import pytest
 import torch
 from torch import nn
@@ -109,6 +111,15 @@ def test_mismatched_architectures_are_refused_with_a_message():
         StackedQNetwork.stack(_mlps(1) + _mlps(1, activation="tanh"))
     with pytest.raises(ValueError, match="differ in architecture"):
         StackedQNetwork.stack(_mlps(1) + _adfqs(1))
+    # same layer shapes, another kind (an MLP of 2A outputs beside ADFQ networks of A actions) or sd bounds
+    adfq = _adfqs(1)[0]
+    plain = nn.Sequential(*[copy.deepcopy(layer) for layer in adfq.mlp])
+    with pytest.raises(ValueError, match="differ in kind or sd bounds"):
+        StackedQNetwork.stack([adfq, plain])
+    other_bounds = copy.deepcopy(adfq)
+    other_bounds.log_sd_max = 1.0
+    with pytest.raises(ValueError, match="differ in kind or sd bounds"):
+        StackedQNetwork.stack([adfq, other_bounds])
     with pytest.raises(TypeError, match="alternating Linear layers"):
         StackedQNetwork.stack([nn.Sequential(nn.Linear(8, 4), nn.ReLU(), nn.Tanh(), nn.Linear(4, 2))])
     with pytest.raises(ValueError, match="one bias per weight"):

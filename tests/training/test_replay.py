@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 from tensordict import TensorDict
 
@@ -56,32 +57,35 @@ def test_fifo_overwrite_once_full():
     drawn = _samples(replay, 2)
     assert set(drawn[:, 0].flatten().tolist()) == {2, 3, 4, 5, 6}
     assert set(drawn[:, 1].flatten().tolist()) == {1002, 1003, 1004, 1005, 1006}
-    assert replay.member_state(1)["transitions"]["id"].tolist() == [1002, 1003, 1004, 1005, 1006]  # oldest first
+    # the rows in storage order: 5 and 6 overwrote rows 0 and 1, the cursor is at row 2 (the oldest, 2)
+    assert replay.member_state(1)["transitions"]["id"].tolist() == [1005, 1006, 1002, 1003, 1004]
+    assert replay.member_state(1)["cursor"] == 2
     replay.extend(_transitions(7, 1, [0, 1]))
-    assert replay.member_state(0)["transitions"]["id"].tolist() == [3, 4, 5, 6, 7]
+    assert replay.member_state(0)["transitions"]["id"].tolist() == [5, 6, 7, 3, 4]
 
 
-def test_member_state_round_trip_gives_the_same_next_samples():
+@pytest.mark.parametrize("collected", [12, 27])  # 27 > 20: the buffer has wrapped around
+def test_member_state_round_trip_gives_the_same_next_samples(collected):
     replay = MemberReplay(capacity=20, batch_size=8, seeds=[3, 4])
-    replay.extend(_transitions(0, 12, [0, 1]))
+    replay.extend(_transitions(0, collected, [0, 1]))
     _samples(replay, 3)  # the sampler's count is part of the state
     states = [replay.member_state(k) for k in range(2)]
     assert [state["draws"] for state in states] == [3, 3]
     restored = MemberReplay(capacity=20, batch_size=8, seeds=[3, 4])
     for k, state in enumerate(states):
         restored.load_member_state(k, state)
-    assert len(restored) == 12
+    assert len(restored) == min(collected, 20)
     assert torch.equal(_samples(restored, 4), _samples(replay, 4))
     # and both go on alike after more transitions
     for buffer in (replay, restored):
-        buffer.extend(_transitions(12, 3, [0, 1]))
+        buffer.extend(_transitions(collected, 3, [0, 1]))
     assert torch.equal(_samples(restored, 2), _samples(replay, 2))
     assert torch.equal(restored.member_state(1)["transitions"]["id"], replay.member_state(1)["transitions"]["id"])
 
 
 def test_empty_member_state_round_trip():
     state = MemberReplay(capacity=4, batch_size=2, seeds=[1]).member_state(0)
-    assert state == {"transitions": None, "draws": 0}
+    assert state == {"transitions": None, "cursor": 0, "draws": 0}
     restored = MemberReplay(capacity=4, batch_size=2, seeds=[1])
     restored.load_member_state(0, state)
     assert len(restored) == 0
