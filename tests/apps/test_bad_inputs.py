@@ -87,7 +87,7 @@ def test_debug_keeps_the_traceback(tmp_path, monkeypatch):
 
 
 def test_internal_errors_keep_their_traceback(tmp_path, monkeypatch):
-    def broken(cfg, out_dir):
+    def broken(cfg, out_dir, stop=None):
         raise RuntimeError("internal")
 
     monkeypatch.setattr(train, "train", broken)

@@ -114,10 +114,10 @@ def test_target_transition_statistics_match_a_and_w():
     assert torch.allclose(cov, noise, atol=4 * noise.diagonal().max().item() * math.sqrt(2 / B))
 
 
-def test_targets_stay_in_free_space_for_10000_steps():
-    config = load_env_config("obstacles1", ["max_steps=10000"])
-    env = TargetTrackingEnv(config, batch_size=4, seed=5)
-    td = env.rollout(10000, break_when_any_done=False)
+def test_targets_stay_in_free_space_for_40000_world_steps():
+    config = load_env_config("obstacles1", ["max_steps=2500"])
+    env = TargetTrackingEnv(config, batch_size=16, seed=5)
+    td = env.rollout(2500, break_when_any_done=False)
     positions = td["next", "target_state"][..., :2]
     assert not env.geometry.in_collision(positions).any()
     cells = torch.floor(positions / env.map.resolution).long()
