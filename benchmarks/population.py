@@ -5,7 +5,8 @@
    for DQN on the 1-target network (``paper_empty1``: 3 x 128) and ADFQ with Thompson sampling on the
    3-target network (``paper_small3``: 3 x 256), eager and compiled (every ``compile.*`` switch on). The rate
    counts the updating frames of every member: a job of ``warmup + frames`` frames minus a warm-up-only job
-   and minus the job's first (compiling) update, as ``train_throughput.measure_loop``. Each row also gives the
+   and minus the job's first (compiling) update, as ``train_throughput.measure_loop`` (compiled, after a
+   first warm-up job that compiles what the later jobs of that size reuse). Each row also gives the
    arithmetic it does (the updates' and the acting's matmul FLOPs per member-frame) as a share of this
    machine's measured matmul rate (``sgemm_gflops``, all threads), the ceiling a batched program can reach.
 2. The vmap alternative: one update of P members of the 3 x 128 DQN by ``torch.vmap`` over TorchRL's
@@ -93,6 +94,8 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
             states = train_population(cfgs, [Path(out) / str(seed) for seed in range(members)])
             return time.perf_counter() - start, states[0].seconds
 
+    if compile:
+        job(warmup)  # compiles the env's, the transforms' and the evaluation's functions for this P (cached)
     warmup_s, warmup_phases = job(warmup)
     warmup_s -= warmup_phases.get("first_update", 0.0)
     job_s, phases = job(warmup + frames)

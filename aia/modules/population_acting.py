@@ -6,9 +6,10 @@ exploration: uniformly random actions during its warm-up frames, then epsilon-gr
 schedule, or ADFQ's Thompson sampling (``argmax_a q_a``, ``q_a ~ N(mean_a, sd_a^2)``).
 
 All draws are counter-based (:mod:`aia.envs.rng`): a pure function of the member's seed, the policy's step
-count and the world's slot. So a member draws the same numbers whatever the other members are (member ``k``
-of a population acts exactly as a population of one with its seed would), nothing but the step count is
-state (a checkpoint stores it), and no draw needs a host sync on CUDA (epsilon is computed on the device).
+count and the world's slot, computed a block of steps at a time (:class:`~aia.envs.rng.CounterStream`). So a
+member draws the same numbers whatever the other members are (member ``k`` of a population acts exactly as a
+population of one with its seed would), nothing but the step count is state (a checkpoint stores it), and no
+draw needs a host sync on CUDA (the step count lives on the host, epsilon is computed on the device).
 """
 
 from __future__ import annotations
@@ -68,11 +69,28 @@ class PopulationQPolicy(TensorDictModuleBase):
         as_tensor = lambda values: torch.tensor(list(values), dtype=torch.float64, device=device)  # noqa: E731
         self.eps_init, self.eps_end = as_tensor(eps_init), as_tensor(eps_end)
         self.annealing_frames = as_tensor(annealing_frames)
-        self.steps = torch.zeros((), dtype=torch.int64, device=device)
+        W, A = worlds_per_member, num_actions
+        self._draws = {"explore": rng.CounterStream(rng.uniform, self.keys, _EXPLORE_STREAM, W),
+                       "random": rng.CounterStream(rng.uniform, self.keys, _RANDOM_STREAM, W)}
+        if thompson:
+            self._draws["thompson"] = rng.CounterStream(rng.normal, self.keys, _THOMPSON_STREAM, W * A,
+                                                        network.weight0.dtype)
+        self.steps = 0
 
     @property
-    def frames(self) -> Tensor:
-        """Frames each member has collected under exploration so far (a tensor: no host sync)."""
+    def steps(self) -> int:
+        """Exploring calls so far: the counter of every draw of the next call."""
+        return self._steps
+
+    @steps.setter
+    def steps(self, value: int) -> None:
+        self._steps = int(value)
+        for stream in self._draws.values():
+            stream.counter = self._steps
+
+    @property
+    def frames(self) -> int:
+        """Frames each member has collected under exploration so far."""
         return self.steps * self.worlds
 
     def epsilon(self) -> Tensor:
@@ -95,19 +113,16 @@ class PopulationQPolicy(TensorDictModuleBase):
         return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))
 
     def _explore(self, out: Tensor | tuple[Tensor, Tensor]) -> Tensor:
-        """``[P, W]`` exploring actions of this step."""
-        counter = self.steps.expand(self.keys.shape[0])
-        W, A = self.worlds, self.num_actions
+        """``[P, W]`` exploring actions of this step (the draws of counter :attr:`steps`)."""
         if self.thompson:
             mean, log_sd = out
-            noise = rng.normal(self.keys, counter, _THOMPSON_STREAM, W * A, mean.dtype).reshape(mean.shape)
+            noise = self._draws["thompson"].next().reshape(mean.shape)
             action = (mean + log_sd.exp() * noise).argmax(-1)
-            epsilon = torch.zeros_like(self.eps_init)
         else:
             action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
-            epsilon = self.epsilon()
-        warm = self.frames < self.warmup_frames
-        epsilon = torch.where(warm, torch.ones_like(epsilon), epsilon)
-        explore = rng.uniform(self.keys, counter, _EXPLORE_STREAM, W, torch.float64) < epsilon.unsqueeze(-1)
-        random = (rng.uniform(self.keys, counter, _RANDOM_STREAM, W, torch.float64) * A).long()
-        return torch.where(explore, random, action)
+        explore, random = self._draws["explore"].next(), self._draws["random"].next()
+        if self.frames < self.warmup_frames:  # warm-up: every action uniformly random
+            return (random * self.num_actions).long()
+        if self.thompson:
+            return action
+        return torch.where(explore < self.epsilon().unsqueeze(-1), (random * self.num_actions).long(), action)

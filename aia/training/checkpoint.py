@@ -56,7 +56,7 @@ def member_checkpoint(parts: PopulationParts, member: int, cfg: DictConfig, stat
         "optimizer": {"step": parts.optimizer.step_count,
                       "exp_avg": [m[member].clone() for m in parts.optimizer.exp_avgs],
                       "exp_avg_sq": [m[member].clone() for m in parts.optimizer.exp_avg_sqs]},
-        "policy_steps": int(parts.policy.steps),
+        "policy_steps": parts.policy.steps,
         "target_updater_counter": parts.target_updater.counter,
         "replay": parts.replay.member_state(member),
         "env_episodes": parts.world_episodes[member * worlds:(member + 1) * worlds].clone(),
@@ -86,7 +86,7 @@ def load_member(parts: PopulationParts, member: int, checkpoint: dict) -> None:
             for moment, value in zip(moments, saved, strict=True):
                 moment[member].copy_(value)
     parts.optimizer.step_count = opt["step"]
-    parts.policy.steps.fill_(checkpoint["policy_steps"])
+    parts.policy.steps = checkpoint["policy_steps"]
     parts.target_updater.counter = checkpoint["target_updater_counter"]
     parts.replay.load_member_state(member, checkpoint["replay"])
     worlds = checkpoint["env_episodes"].shape[0]

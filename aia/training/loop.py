@@ -171,14 +171,14 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     if remaining <= 0:
         return run.states()
     steps = math.ceil(remaining / W)
-    policy_steps = policy.steps.clone()
+    policy_steps = policy.steps
     collector = Collector(
         env, policy, frames_per_batch=P * W, total_frames=steps * P * W, device=cfg.device,
         auto_register_policy_transforms=False,  # the Q-networks keep no recurrent state
         track_traj_ids=False,  # trajectory ids are not used (episodes end on done): saves a copy per step
         return_same_td=True,  # no clone per batch: the loop copies what it keeps (into the replay buffer)
     )
-    policy.steps.copy_(policy_steps)  # the collector probes the policy once when it is built: not a step
+    policy.steps = policy_steps  # the collector probes the policy once when it is built: not a step
     running_score = torch.zeros(P, W, device=cfg.device)
     updates_owed = 0.0
     # read once: an attribute of an OmegaConf config costs about 7 us, several times a frame's budget share

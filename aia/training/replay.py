@@ -3,8 +3,8 @@
 A ``LazyTensorStorage`` of shape ``[capacity, P]`` holds every member's transitions; members collect in
 lockstep (one frame each per world per step), so one write cursor serves all. Each member samples its own
 uniform indices from a counter-based stream (:mod:`aia.envs.rng`) keyed by its seed and the number of
-batches drawn so far: what member ``k`` replays does not depend on the other members, the sampler has no
-state but that count, and sampling needs no host sync on CUDA.
+batches drawn so far (drawn a block of batches at a time): what member ``k`` replays does not depend on the
+other members, the sampler has no state but that count, and sampling needs no host sync on CUDA.
 """
 
 from __future__ import annotations
@@ -38,10 +38,15 @@ class MemberReplay:
         self.members = torch.arange(self.num_members, device=device).unsqueeze(-1).expand(-1, batch_size)
         self.cursor = 0  # next row written
         self.size = 0  # rows filled
-        self.draws = torch.zeros(self.num_members, dtype=torch.int64, device=device)  # batches sampled
+        self._uniforms = rng.CounterStream(rng.uniform, self.keys, 0, batch_size)  # counter: batches drawn
 
     def __len__(self) -> int:
         return self.size
+
+    @property
+    def draws(self) -> int:
+        """Batches sampled so far (the members sample in lockstep)."""
+        return self._uniforms.counter
 
     def extend(self, transitions: TensorDictBase) -> None:
         """Append ``[T, P]`` transitions (the oldest rows are overwritten once the buffer is full)."""
@@ -53,9 +58,7 @@ class MemberReplay:
 
     def sample(self) -> TensorDictBase:
         """``[P, batch_size]`` transitions, member ``k``'s drawn uniformly (with replacement) from its rows."""
-        u = rng.uniform(self.keys, self.draws, 0, self.batch_size, torch.float64)
-        self.draws += 1
-        rows = (u * self.size).long()
+        rows = (self._uniforms.next() * self.size).long()
         return self.storage.get((rows, self.members))
 
     def member_state(self, member: int) -> dict:
@@ -63,7 +66,7 @@ class MemberReplay:
         a checkpoint keeps (a restored buffer samples the same rows as the one saved)."""
         index = torch.arange(self.size)
         rows = self.storage.get((index, torch.full_like(index, member))).clone() if self.size else None
-        return {"transitions": rows, "cursor": self.cursor, "draws": int(self.draws[member])}
+        return {"transitions": rows, "cursor": self.cursor, "draws": self.draws}
 
     def load_member_state(self, member: int, state: dict) -> None:
         """Restore member ``member`` from :meth:`member_state` (every member must restore the same rows)."""
@@ -76,7 +79,7 @@ class MemberReplay:
             self._ensure_storage(rows)
             self.storage.set((index, torch.full_like(index, member)), rows.to(self.storage.device))
         self.size, self.cursor = count, state["cursor"]
-        self.draws[member] = state["draws"]
+        self._uniforms.counter = state["draws"]
 
     def _ensure_storage(self, rows: TensorDictBase) -> None:
         """Allocate the storage from one member's rows (a lazy storage takes its layout from its first write)."""
