@@ -1,10 +1,14 @@
 """Preemption: a signal ends the run at the end of its episode with every evaluation, a checkpoint and a log
 marked stopped; resume=auto continues in the same folder into the log's next segment, and the joined history
-is the uninterrupted run's (counters, evaluation frames, scores); checkpoints of another run are refused."""
+is the uninterrupted run's (counters, evaluation frames, scores), after a signal and after kill -9;
+checkpoints of another run are refused."""
 
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
+import time
 
 import pytest
 import torch
@@ -81,3 +85,37 @@ def test_a_checkpoint_of_another_run_is_refused_naming_each_difference(tmp_path)
     broken.write_text("not a checkpoint")
     with pytest.raises(ConfigError, match=f"resume='{broken}': expected a readable aia-train checkpoint"):
         train(_config(*SMALL, "frames=200", "logger=none", f"resume={broken}"), tmp_path / "c")
+
+
+def test_resume_auto_after_kill_9_gives_the_uninterrupted_history(tmp_path):
+    """A run killed outright after a checkpoint: its log holds steps the resumed run does again; the joined
+    history drops them, so it is the uninterrupted run's, evaluation by evaluation."""
+    overrides = [*LOGGED, "checkpoint_every_frames=80", "eval.per_rollout=1", "logger.flush_interval_s=0.1",
+                 "threads=1"]
+    run_dir = tmp_path / "run"
+    process = subprocess.Popen([sys.executable, "-m", "aia.apps.train", *overrides, "frames=100000",
+                                f"hydra.run.dir={run_dir}"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                               text=True)
+    deadline = time.monotonic() + 240
+    checkpoint, log = run_dir / "checkpoints" / "last.pt", run_dir / "run.mcap"
+
+    def evaluated_past_the_checkpoint() -> bool:
+        if not (checkpoint.exists() and log.exists()) or "eval/score" not in read_run(log).scalar_topics():
+            return False
+        frames = torch.load(checkpoint, weights_only=False)["state"]["frames"]
+        return frames >= 160 and read_run(log).scalars("eval/score").frames.max() > frames
+
+    while not evaluated_past_the_checkpoint():
+        assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()[-2000:]
+        time.sleep(0.2)
+    process.kill()
+    process.wait(timeout=60)
+    saved = torch.load(checkpoint, weights_only=False)["state"]["frames"]
+    frames = saved + 80
+    resumed = train(_config(*overrides, f"frames={frames}", "resume=auto"), run_dir)
+    whole = train(_config(*overrides, f"frames={frames}"), tmp_path / "whole")
+    assert resumed.eval_scores == pytest.approx(whole.eval_scores, rel=1e-5)
+    joined, alone = read_run(log), read_run(tmp_path / "whole" / "run.mcap")
+    assert joined.segments == [run_dir / "run.1.mcap"]  # the resumed run's segment, joined
+    for topic in ("eval/score", "train/score"):
+        assert joined.scalars(topic).frames.tolist() == alone.scalars(topic).frames.tolist(), topic
