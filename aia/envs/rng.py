@@ -107,7 +107,7 @@ class CounterStream:
     @counter.setter
     def counter(self, value: int) -> None:
         self._counter = int(value)
-        if self._block is None or not self._first <= self._counter < self._first + self.chunk:
+        if not self._first <= self._counter < self._first + self.chunk:
             self._block = None
 
     def next(self) -> Tensor:

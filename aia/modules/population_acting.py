@@ -75,18 +75,16 @@ class PopulationQPolicy(TensorDictModuleBase):
         if thompson:
             self._draws["thompson"] = rng.CounterStream(rng.normal, self.keys, _THOMPSON_STREAM, W * A,
                                                         network.weight0.dtype)
-        self.steps = 0
 
     @property
     def steps(self) -> int:
-        """Exploring calls so far: the counter of every draw of the next call."""
-        return self._steps
+        """Exploring calls so far: the counter of every draw of the next call (the streams advance together)."""
+        return self._draws["explore"].counter
 
     @steps.setter
     def steps(self, value: int) -> None:
-        self._steps = int(value)
         for stream in self._draws.values():
-            stream.counter = self._steps
+            stream.counter = value
 
     @property
     def frames(self) -> int:
@@ -108,12 +106,13 @@ class PopulationQPolicy(TensorDictModuleBase):
         if not exploring():
             action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
             return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))
-        action = self._explore(out)
-        self.steps += 1
+        action = self._explore(out)  # its draws advance the streams: one step
         return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))
 
     def _explore(self, out: Tensor | tuple[Tensor, Tensor]) -> Tensor:
         """``[P, W]`` exploring actions of this step (the draws of counter :attr:`steps`)."""
+        warm = self.frames < self.warmup_frames  # read before the draws advance the step count
+        epsilon = None if self.thompson or warm else self.epsilon()
         if self.thompson:
             mean, log_sd = out
             noise = self._draws["thompson"].next().reshape(mean.shape)
@@ -121,8 +120,8 @@ class PopulationQPolicy(TensorDictModuleBase):
         else:
             action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
         explore, random = self._draws["explore"].next(), self._draws["random"].next()
-        if self.frames < self.warmup_frames:  # warm-up: every action uniformly random
+        if warm:  # every action uniformly random
             return (random * self.num_actions).long()
-        if self.thompson:
+        if epsilon is None:  # Thompson sampling explores by itself
             return action
-        return torch.where(explore < self.epsilon().unsqueeze(-1), (random * self.num_actions).long(), action)
+        return torch.where(explore < epsilon.unsqueeze(-1), (random * self.num_actions).long(), action)

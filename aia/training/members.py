@@ -21,7 +21,7 @@ class PopulationError(ValueError):
     """Runs that cannot share one population program; the message names the first differing key."""
 
 
-def _flat(cfg: DictConfig) -> dict[str, object]:
+def flat_settings(cfg: DictConfig) -> dict[str, object]:
     """The resolved config as ``{"dotted.key": value}`` (lists stay values)."""
     out: dict[str, object] = {}
 
@@ -38,7 +38,7 @@ def _flat(cfg: DictConfig) -> dict[str, object]:
 
 def shared_settings(cfg: DictConfig) -> dict[str, object]:
     """Every setting of ``cfg`` that all members of its population must share (all but :data:`MEMBER_KEYS`)."""
-    return {key: value for key, value in _flat(cfg).items() if key not in MEMBER_KEYS}
+    return {key: value for key, value in flat_settings(cfg).items() if key not in MEMBER_KEYS}
 
 
 def population_signature(cfg: DictConfig) -> str:

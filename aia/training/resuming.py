@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from aia.errors import ConfigError
 from aia.training.checkpoint import CHECKPOINT_NAME
+from aia.training.members import flat_settings
 
 RESUME_KEYS = ("env", "algo", "exploration.name", "hidden", "seed", "collector.num_envs", "buffer_size",
                "batch_size", "gamma", "target_update_interval", "warmup_frames", "updates_per_frame")
@@ -40,35 +41,17 @@ def load_resumable(path: Path, cfg: DictConfig, map_location: str) -> dict:
         raise ConfigError("resume", str(path), f"a readable aia-train checkpoint ({type(err).__name__})") from None
     if not isinstance(checkpoint, dict) or not {"config", "online", "state"} <= checkpoint.keys():
         raise ConfigError("resume", str(path), "a checkpoint written by aia-train (no 'config'/'online'/'state')")
-    saved = OmegaConf.create(checkpoint["config"])
-    differences = [f"{key} ({_get(saved, key)!r} in the checkpoint, {_get(cfg, key)!r} now)"
-                   for key in _leaves(saved, cfg) if _get(saved, key) != _get(cfg, key)]
+    saved, now = flat_settings(OmegaConf.create(checkpoint["config"])), flat_settings(cfg)
+    keys = sorted((k for k in saved.keys() | now.keys() if _resume_key(k) is not None),
+                  key=lambda k: (_resume_key(k), k))
+    differences = [f"{key} ({saved.get(key)!r} in the checkpoint, {now.get(key)!r} now)"
+                   for key in keys if saved.get(key) != now.get(key)]
     if differences:
         raise ConfigError("resume", str(path), "a checkpoint of the same run; it differs in "
                           + ", ".join(differences))
     return checkpoint
 
 
-def _leaves(a: DictConfig, b: DictConfig) -> list[str]:
-    """The dotted keys under :data:`RESUME_KEYS` in either config."""
-    keys = []
-    for key in RESUME_KEYS:
-        for cfg in (a, b):
-            node = OmegaConf.select(cfg, key)
-            if isinstance(node, DictConfig):
-                keys += [f"{key}.{leaf}" for leaf in _flatten(OmegaConf.to_container(node, resolve=True))]
-            else:
-                keys.append(key)
-    return list(dict.fromkeys(keys))
-
-
-def _flatten(node: dict, prefix: str = "") -> list[str]:
-    out = []
-    for key, value in node.items():
-        out += _flatten(value, f"{prefix}{key}.") if isinstance(value, dict) else [f"{prefix}{key}"]
-    return out
-
-
-def _get(cfg: DictConfig, key: str) -> object:
-    value = OmegaConf.select(cfg, key)
-    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+def _resume_key(key: str) -> int | None:
+    """The position in :data:`RESUME_KEYS` of the entry that dotted ``key`` is (or lies under), else None."""
+    return next((i for i, root in enumerate(RESUME_KEYS) if key == root or key.startswith(root + ".")), None)

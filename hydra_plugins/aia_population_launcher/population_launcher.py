@@ -43,6 +43,7 @@ def _import(path: str) -> Callable:
 def group_jobs(cfgs: Sequence[DictConfig]) -> tuple[list[list[int]], list[str]]:
     """The jobs' indices grouped into populations (in order of first appearance), and one line per job that
     runs alone naming the key that kept it from the first group."""
+    # imported here, not at the top: Hydra's plugin scan imports this module for every app's start
     from aia.training.members import first_difference, population_signature
 
     groups: dict[str, list[int]] = {}
