@@ -1,7 +1,7 @@
 """``aia-train``: train a DQN, Double DQN or ADFQ policy on a tracking setting (Hydra app).
 
 ``aia-train --help`` lists the config groups (env, algo, exploration, logger) and every field. SIGTERM,
-SIGINT (Ctrl-C) and SIGUSR1 (a cluster's preemption or time limit) end the run after its current step: the
+SIGINT (Ctrl-C) and SIGUSR1 (a cluster's preemption or time limit) end the run at the end of its episode: the
 pending evaluations are played, the checkpoint written and the log closed; the app says where the checkpoint
 is and exits with status 128 + signal (143 for SIGTERM). ``resume=auto`` continues from it.
 """

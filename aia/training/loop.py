@@ -98,8 +98,8 @@ def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop:
                      ) -> list[TrainingState]:
     """Train one member per config, member ``k`` in ``out_dirs[k]``, as one batched program; returns each
     member's final counters (metrics go to each member's logger, closed on any exit). Once ``stop`` has seen a
-    signal, the loop ends after its current step as at the end of its budget: pending evaluations played,
-    every member's checkpoint written."""
+    signal, the loop ends at the end of the current episode as at the end of its budget: pending evaluations
+    played, every member's checkpoint written, the logs marked stopped."""
     if len(cfgs) != len(out_dirs):
         raise ValueError(f"{len(cfgs)} configs for {len(out_dirs)} run folders")
     for cfg in cfgs:
