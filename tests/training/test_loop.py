@@ -20,20 +20,26 @@ def _config(*overrides: str):
 SMALL = ("env.max_steps=40", "warmup_frames=100", "logger=none", "eval.episodes=2", "batch_size=16")
 
 
-# DQN and ADFQ with epsilon-greedy train in the other loop tests; every loss's step is checked in test_optimizer
-@pytest.mark.parametrize("algo, exploration", [("ddqn", "egreedy"), ("adfq", "thompson")])
-def test_each_algorithm_trains_1000_frames_without_nan(tmp_path, algo, exploration):
-    cfg = _config(f"algo={algo}", f"exploration={exploration}", "frames=1000", "eval.every_episodes=5", *SMALL)
-    state = train(cfg, tmp_path)
-    assert state.frames == 1000 and state.episodes == 25 and state.updates == 901  # from frame 100 on
-    assert len(state.eval_scores) == 5 and all(math.isfinite(s) for s in state.eval_scores)
-    checkpoint = torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)
-    assert checkpoint["state"]["frames"] == 1000
+def _assert_finished(state, cfg, out_dir, evaluations: int) -> None:
+    """The counters of a run that trained ``cfg.frames`` frames in one world, finite scores and weights, and a
+    checkpoint that holds the final counters and phase times."""
+    assert state.frames == cfg.frames and state.episodes == cfg.frames // cfg.env.max_steps
+    assert state.updates == cfg.frames - cfg.warmup_frames + 1  # one per frame from the warm-up's last on
+    assert len(state.eval_scores) == evaluations and all(math.isfinite(s) for s in state.eval_scores)
+    checkpoint = torch.load(out_dir / "checkpoints" / "last.pt", weights_only=False)
+    assert checkpoint["state"]["frames"] == cfg.frames
     assert {"collect", "buffer", "update", "evaluate", "other"} <= set(state.seconds)
     assert all(seconds >= 0 for seconds in state.seconds.values())
     assert checkpoint["state"]["seconds"] == state.seconds
     for value in checkpoint["actor"].values():
         assert torch.isfinite(value).all()
+
+
+# DQN and ADFQ with epsilon-greedy train in the other loop tests, ADFQ-TS in the learning test below; every
+# loss's step is checked in test_optimizer
+def test_double_dqn_trains_1000_frames_without_nan(tmp_path):
+    cfg = _config("algo=ddqn", "frames=1000", "eval.every_episodes=5", *SMALL)
+    _assert_finished(train(cfg, tmp_path), cfg, tmp_path, evaluations=5)
 
 
 def test_collects_from_several_worlds_per_batch(tmp_path):
@@ -139,7 +145,7 @@ def test_adfq_thompson_learns_to_beat_random_and_its_initial_policy(tmp_path):
 
     cfg = _config("algo=adfq", "exploration=thompson", "frames=2000", "env.max_steps=50", "logger=none",
                   "eval.every_episodes=10", "seed=1")
-    train(cfg, tmp_path)
+    _assert_finished(train(cfg, tmp_path), cfg, tmp_path, evaluations=4)
     env = make_env(to_tracking_config(cfg.env), batch_size=64, seed=123)
     trained, initial = make_actor(cfg, env), make_actor(cfg, env)
     trained.load_state_dict(torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)["actor"])
