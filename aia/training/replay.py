@@ -1,10 +1,17 @@
-"""``MemberReplay``: the replay buffers of ``P`` learners in one TorchRL storage with a member dimension.
+"""``MemberReplay``: the replay buffers of ``P`` learners in one storage with a member dimension.
 
-A ``LazyTensorStorage`` of shape ``[capacity, P]`` holds every member's transitions; members collect in
-lockstep (one frame each per world per step), so one write cursor serves all. Each member samples its own
-uniform indices from a counter-based stream (:mod:`aia.envs.rng`) keyed by its seed and the number of
-batches drawn so far (drawn a block of batches at a time): what member ``k`` replays does not depend on the
-other members, the sampler has no state but that count, and sampling needs no host sync on CUDA.
+One ``TensorDict`` of shape ``[capacity, P]`` holds every member's transitions; members collect in lockstep
+(one frame each per world per step), so one write cursor serves all. Each member samples its own uniform
+indices from a counter-based stream (:mod:`aia.envs.rng`) keyed by its seed and the number of batches drawn so
+far (drawn a block of batches at a time): what member ``k`` replays does not depend on the other members, the
+sampler has no state but that count, and sampling needs no host sync on CUDA.
+
+Why not TorchRL's ``LazyTensorStorage`` (which this class used before): its ``set`` and ``get`` index the
+``[capacity, P]`` TensorDict through TensorDict's generic indexing, which costs more than the copies. Writing
+each leaf with ``index_copy_`` and sampling each leaf with ``index_select`` into a batch allocated once measured
+(2026-12-02, 2-core VM under load, one thread, the DQN loss's 6 leaves, three repeats in one run; `extend` of one
+step / `sample` of 64): at P = 1, 341-412 / 135-188 us with ``LazyTensorStorage`` against 42-57 / 40-75 us;
+at P = 20, 271-395 / 477-711 against 53-90 / 149-291 us. That is about 0.4 ms of a paper-regime frame of ~4 ms.
 """
 
 from __future__ import annotations
@@ -12,8 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from tensordict import TensorDictBase
-from torchrl.data import LazyTensorStorage
+from tensordict import NestedKey, TensorDictBase
 
 from aia.envs import rng
 
@@ -25,7 +31,9 @@ class MemberReplay:
     """Per-member FIFO replay of ``capacity`` transitions and uniform batches of ``batch_size``.
 
     :meth:`extend` takes ``[T, P]`` transitions (``T`` per member), :meth:`sample` returns ``[P, batch_size]``,
-    member ``k``'s row drawn from member ``k``'s own transitions only.
+    member ``k``'s row drawn from member ``k``'s own transitions only. The storage takes its keys, shapes and
+    dtypes from the first transitions written. :meth:`sample` fills one batch allocated once and returns it
+    each time: a caller reads a batch before sampling the next (as an update step does).
     """
 
     def __init__(self, capacity: int, batch_size: int, seeds: Sequence[int], device: torch.device | str = "cpu"
@@ -33,12 +41,16 @@ class MemberReplay:
         self.capacity = capacity
         self.batch_size = batch_size
         self.num_members = len(seeds)
-        self.storage = LazyTensorStorage(capacity * self.num_members, ndim=2, device=device)
+        self.device = torch.device(device)
         self.keys = rng.seed_keys(list(seeds), REPLAY_PURPOSE, device)
         self.members = torch.arange(self.num_members, device=device).unsqueeze(-1).expand(-1, batch_size)
         self.cursor = 0  # next row written
         self.size = 0  # rows filled
         self._uniforms = rng.CounterStream(rng.uniform, self.keys, 0, batch_size)  # counter: batches drawn
+        self._rows: TensorDictBase | None = None  # [capacity, P], allocated by the first write
+        self._batch: TensorDictBase | None = None  # [P, batch_size], what sample fills
+        self._leaves: list[tuple[NestedKey, torch.Tensor, torch.Tensor]] = []  # key, rows' leaf, batch's leaf
+        self._flat_leaves: list[tuple[NestedKey, torch.Tensor, torch.Tensor]] = []  # views: [capacity * P], [P * B]
 
     def __len__(self) -> int:
         return self.size
@@ -51,21 +63,26 @@ class MemberReplay:
     def extend(self, transitions: TensorDictBase) -> None:
         """Append ``[T, P]`` transitions (the oldest rows are overwritten once the buffer is full)."""
         T = transitions.batch_size[0]
-        rows = (torch.arange(T) + self.cursor) % self.capacity
-        self.storage.set(rows, transitions)
+        if self._rows is None:
+            self._allocate(transitions[0])
+        rows = (torch.arange(T, device=self.device) + self.cursor) % self.capacity
+        for key, leaf, _ in self._leaves:
+            leaf.index_copy_(0, rows, transitions.get(key))
         self.cursor = (self.cursor + T) % self.capacity
         self.size = min(self.size + T, self.capacity)
 
     def sample(self) -> TensorDictBase:
         """``[P, batch_size]`` transitions, member ``k``'s drawn uniformly (with replacement) from its rows."""
         rows = (self._uniforms.next() * self.size).long()
-        return self.storage.get((rows, self.members))
+        flat = (rows * self.num_members + self.members).flatten()  # row-major index into [capacity * P]
+        for _, leaf, out in self._flat_leaves:
+            torch.index_select(leaf, 0, flat, out=out)
+        return self._batch
 
     def member_state(self, member: int) -> dict:
         """Member ``member``'s rows (in their storage order), the write cursor and its sampler's count: what
         a checkpoint keeps (a restored buffer samples the same rows as the one saved)."""
-        index = torch.arange(self.size)
-        rows = self.storage.get((index, torch.full_like(index, member))).clone() if self.size else None
+        rows = self._rows[: self.size, member].clone() if self.size else None
         return {"transitions": rows, "cursor": self.cursor, "draws": self.draws}
 
     def load_member_state(self, member: int, state: dict) -> None:
@@ -75,14 +92,17 @@ class MemberReplay:
         if count > self.capacity:
             raise ValueError(f"a checkpoint of {count} transitions does not fit a buffer of {self.capacity}")
         if count:
-            index = torch.arange(count)
-            self._ensure_storage(rows)
-            self.storage.set((index, torch.full_like(index, member)), rows.to(self.storage.device))
+            if self._rows is None:
+                self._allocate(rows[0].unsqueeze(0).expand(self.num_members))
+            self._rows[:count, member] = rows.to(self.device)
         self.size, self.cursor = count, state["cursor"]
         self._uniforms.counter = state["draws"]
 
-    def _ensure_storage(self, rows: TensorDictBase) -> None:
-        """Allocate the storage from one member's rows (a lazy storage takes its layout from its first write)."""
-        if not self.storage.initialized:
-            self.storage.set(torch.arange(1), rows[:1].unsqueeze(1).expand(1, self.num_members).clone())
-
+    def _allocate(self, step: TensorDictBase) -> None:
+        """Allocate the rows and the sampled batch from one step's ``[P]`` transitions."""
+        step = step.to(self.device)
+        self._rows = step.unsqueeze(0).expand(self.capacity, self.num_members).clone()
+        self._batch = step.unsqueeze(-1).expand(self.num_members, self.batch_size).clone()
+        self._leaves = [(key, self._rows.get(key), self._batch.get(key))
+                        for key in self._rows.keys(include_nested=True, leaves_only=True)]
+        self._flat_leaves = [(key, rows.flatten(0, 1), batch.flatten(0, 1)) for key, rows, batch in self._leaves]

@@ -18,7 +18,7 @@ def _transitions(start: int, count: int, members: list[int]) -> TensorDict:
 
 
 def _samples(replay: MemberReplay, count: int) -> torch.Tensor:
-    return torch.stack([replay.sample()["id"] for _ in range(count)])  # [count, P, batch]
+    return torch.stack([replay.sample()["id"].clone() for _ in range(count)])  # [count, P, batch]
 
 
 def test_a_members_samples_depend_only_on_its_seed_and_its_own_rows():
