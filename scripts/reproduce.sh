@@ -15,10 +15,12 @@
 #                hydra/launcher=population);  OUT  output folder [outputs/repro]
 #   FIGURES      where the figures and tables go [$OUT/figures]
 #   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
-#   ARVI_EPISODES  episodes per ARVI seed, planned together in one batch [5]
-#   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's]
+#   ARVI_EPISODES  episodes per ARVI seed [5]; all seeds' episodes are planned in one batch (one process,
+#                hydra/launcher=population), each seed a budget group of its own
+#   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's], shared by the whole batch
 #   ARVI_NODES   if set, a deterministic budget of this many nodes per world instead of ARVI_BUDGET
-#                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU)
+#                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU); each seed's
+#                results then equal those of its own aia-eval run
 #   ARVI_MIN_RANGES  planner.min_range values, one ARVI baseline each [0 2]: 0 is ARVI as specified,
 #                2 keeps the plan off the belief mean (docs/planner.md, "Minimum planning range");
 #                ARVI_MIN_RANGES= (empty) runs no ARVI, e.g. to add learner seeds
@@ -68,9 +70,9 @@ for setting in $SETTINGS; do
   for min_range in $ARVI_MIN_RANGES; do
     name=arvi; label=ARVI
     if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
-    echo "== $setting: $label (seeds $ARVI_SEEDS)"
-    aia-eval -m policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" threads=1 \
-      "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
+    echo "== $setting: $label (seeds $ARVI_SEEDS, planned in one batch)"
+    aia-eval -m hydra/launcher=population policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" \
+      threads=1 "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
       'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
   done

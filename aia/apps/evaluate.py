@@ -5,12 +5,18 @@ at ``epsilon``; ``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``
 ``env``. Either way ``episodes`` episodes run as one batched rollout through the same evaluation path; the
 app prints the score mean and std (SPEC 9) and writes ``eval.json`` and ``run.mcap`` (the scores, the
 config, and world 0's episode as Foxglove scenes: ``aia-log render`` draws it as in the paper's Fig. 3).
+
+``aia-eval -m policy=arvi seed=0,...,9 hydra/launcher=population`` runs :func:`evaluate_jobs`: all seeds'
+episodes in one rollout, planned in one batch with a budget group per seed, so that under a node or pass
+budget every job writes the scores and log its own process would.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import sys
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
@@ -23,11 +29,13 @@ from torchrl.envs import StepCounter
 from aia.apps.hydra_app import hydra_app
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
+from aia.errors import ConfigError
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
 from aia.training import make_actor
+from aia.training.members import check_population
 from aia.validation import validate_eval_config
 
 POLICIES = ("checkpoint", "arvi")
@@ -66,39 +74,60 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
         logger.log_hparams(cfg)  # the trained policy's config (env, algo, ...)
     result = {"checkpoint": str(path), "algo": cfg.algo.name, "frames_trained": frames, "episodes": episodes,
               "epsilon": epsilon}
-    return result | score_episodes(env, policy, logger, frames)
+    return result | score_episodes(env, policy, [logger], frames)[0]
 
 
 def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seed: int, device: str,
                      logger: MCAPLogger | None = None) -> dict:
     """Scores of the ARVI planner on ``episodes`` fresh episodes of the setting ``env_cfg`` (all worlds are
     planned together, so a wall-clock budget is shared by the batch; logged to ``logger`` if given)."""
+    return evaluate_planner_seeds(env_cfg, planner_cfg, episodes, [seed], device, [logger])[0]
+
+
+def evaluate_planner_seeds(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seeds: Sequence[int],
+                           device: str, loggers: Sequence[MCAPLogger | None] | None = None) -> list[dict]:
+    """:func:`evaluate_planner` for each of ``seeds`` (logged to ``loggers[k]``), all in one rollout: seed
+    ``k``'s worlds replay the episodes of an env seeded with it, planned as budget group ``k``. Under a node
+    or pass budget each result equals the seed's own call's; a wall-clock budget is shared by all worlds."""
     _check_episodes(episodes)
     planner = to_arvi_config(planner_cfg)
-    env = make_env(to_tracking_config(env_cfg), batch_size=episodes, device=device, seed=seed)
+    loggers = [None] * len(seeds) if loggers is None else list(loggers)
+    env = make_env(to_tracking_config(env_cfg), batch_size=episodes * len(seeds), device=device, seed=seeds[0])
+    env.base_env.replay_streams(torch.tensor(seeds).repeat_interleave(episodes),
+                                torch.arange(episodes).repeat(len(seeds)),
+                                torch.zeros(episodes * len(seeds), dtype=torch.long))
     env.append_transform(StepCounter())  # ARVIPolicy re-plans on the episode's step count
-    if logger is not None:
-        logger.log_hparams(OmegaConf.create({"policy": "arvi", "env": env_cfg, "planner": planner_cfg,
-                                             "episodes": episodes, "seed": seed}))
-    result = score_episodes(env, ARVIPolicy(env, planner), logger)
+    for seed, logger in zip(seeds, loggers, strict=True):
+        if logger is not None:
+            logger.log_hparams(OmegaConf.create({"policy": "arvi", "env": env_cfg, "planner": planner_cfg,
+                                                 "episodes": episodes, "seed": seed}))
+    policy = ARVIPolicy(env, planner, groups=torch.arange(len(seeds)).repeat_interleave(episodes))
     parameters = {k: v if not isinstance(v, float) or math.isfinite(v) else str(v) for k, v in asdict(planner).items()}
-    return {"policy": "arvi", "planner": parameters, "episodes": episodes} | result
+    return [{"policy": "arvi", "planner": parameters, "episodes": episodes} | result
+            for result in score_episodes(env, policy, loggers)]
 
 
-def score_episodes(env, policy, logger: MCAPLogger | None, frame: int = 0) -> dict:
-    """One episode per world of ``env`` under ``policy``: the scores and their mean and std. With a
-    ``logger``, world 0's episode is recorded as scenes and every score goes to ``eval/episode_score`` (step:
-    the world's index), their mean and std to ``eval/score`` and ``eval/score_std`` (step: ``frame``)."""
-    if logger is not None:
-        recorder = SceneRecorder(logger)
-        env.append_transform(recorder)
-        recorder.record(episode=0, frame=frame)
-    summary = evaluation_summary(run_episodes(env, policy))
-    if logger is not None:
-        for world, score in enumerate(summary["scores"]):
-            logger.log_scalar("eval/episode_score", score, step=world)
-        log_score_summary(logger, summary, frame)
-    return summary
+def score_episodes(env, policy, loggers: Sequence[MCAPLogger | None], frame: int = 0) -> list[dict]:
+    """One episode per world of ``env`` under ``policy``, the worlds split into ``len(loggers)`` equal
+    consecutive blocks (one per run): each block's scores and their mean and std. With a logger, its
+    block's first episode is recorded as scenes and its scores go to ``eval/episode_score`` (step: the
+    world's index in the block), their mean and std to ``eval/score`` and ``eval/score_std`` (step: ``frame``)."""
+    size = env.batch_size[0] // len(loggers)
+    for block, logger in enumerate(loggers):
+        if logger is not None:
+            recorder = SceneRecorder(logger, world=block * size)
+            env.append_transform(recorder)
+            recorder.record(episode=0, frame=frame)
+    rollout = run_episodes(env, policy)
+    summaries = []
+    for block, logger in enumerate(loggers):
+        summary = evaluation_summary(rollout[block * size:(block + 1) * size])
+        if logger is not None:
+            for world, score in enumerate(summary["scores"]):
+                logger.log_scalar("eval/episode_score", score, step=world)
+            log_score_summary(logger, summary, frame)
+        summaries.append(summary)
+    return summaries
 
 
 def _check_episodes(episodes: int) -> None:
@@ -106,32 +135,75 @@ def _check_episodes(episodes: int) -> None:
         raise ValueError(f"episodes={episodes} must be >= 1")
 
 
-@hydra_app("aia-eval", config_name="eval")  # invalid input: one line on stderr, exit 2
-def main(cfg: DictConfig) -> None:
-    """Entry point of ``aia-eval``."""
+@hydra_app("aia-eval", config_name="eval", population="aia.apps.evaluate.evaluate_jobs")  # bad input: exit 2
+def main(cfg: DictConfig) -> float:
+    """Entry point of ``aia-eval``; returns the score mean."""
     validate_eval_config(cfg, HydraConfig.get().overrides.task)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    if cfg.policy not in POLICIES:
-        raise ValueError(f"policy={cfg.policy!r} is not one of {list(POLICIES)}")
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    logger = MCAPLogger(f"eval-{cfg.policy}-seed{cfg.seed}", out_dir, run_metadata={"seed": cfg.seed,
-                                                                                     "policy": cfg.policy})
+    return run_jobs([cfg], [Path(HydraConfig.get().runtime.output_dir)])[0]
+
+
+def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float | Exception]:
+    """The population launcher's task (``hydra/launcher=population``): the jobs' configs, which differ only
+    in ``seed``, evaluated together by :func:`run_jobs`, job ``k`` writing to ``out_dirs[k]``; each job's score
+    mean, or the error that stopped it (an invalid config fails its own job only: the others run without it)."""
+    outcomes: dict[int, float | Exception] = {}
+    valid = []
+    for index, (cfg, out_dir) in enumerate(zip(cfgs, out_dirs, strict=True)):
+        try:
+            validate_eval_config(cfg, _job_overrides(out_dir))
+            valid.append(index)
+        except ConfigError as err:
+            print(f"aia-eval: error: job {index}: {err}", file=sys.stderr)
+            outcomes[index] = err
+    if valid:
+        scores = run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid])
+        outcomes.update(zip(valid, scores, strict=True))
+    return [outcomes[index] for index in range(len(cfgs))]
+
+
+def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float]:
+    """Evaluate validated configs that differ only in ``seed``, each writing its ``eval.json`` and ``run.mcap``
+    to its folder: ``policy=arvi`` in one rollout (:func:`evaluate_planner_seeds`), checkpoints one by one.
+    Each job's score mean."""
+    check_population(cfgs)
+    first = cfgs[0]
+    if first.threads:
+        torch.set_num_threads(first.threads)
+    loggers = [MCAPLogger(f"eval-{cfg.policy}-seed{cfg.seed}", out_dir,
+                          run_metadata={"seed": cfg.seed, "policy": cfg.policy})
+               for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
     try:
-        if cfg.policy == "checkpoint":
-            result = evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device, logger)
-            what = f"{result['algo']} after {result['frames_trained']} frames"
-            how = f"epsilon {cfg.epsilon}"
+        if first.policy == "arvi":
+            results = evaluate_planner_seeds(first.env, first.planner, first.episodes, [cfg.seed for cfg in cfgs],
+                                             first.device, loggers)
         else:
-            result = evaluate_planner(cfg.env, cfg.planner, cfg.episodes, cfg.seed, cfg.device, logger)
-            what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
+            results = [evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device, logger)
+                       for cfg, logger in zip(cfgs, loggers, strict=True)]
     finally:
-        logger.close()
+        for logger in loggers:
+            logger.close()
+    for cfg, out_dir, logger, result in zip(cfgs, out_dirs, loggers, results, strict=True):
+        _report(cfg, Path(out_dir), logger, result)
+    return [result["score_mean"] for result in results]
+
+
+def _report(cfg: DictConfig, out_dir: Path, logger: MCAPLogger, result: dict) -> None:
+    """Print a job's scores and write its ``eval.json``."""
+    if cfg.policy == "checkpoint":
+        what, how = f"{result['algo']} after {result['frames_trained']} frames", f"epsilon {cfg.epsilon}"
+    else:
+        what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
     print(f"{what}: score {result['score_mean']:.1f} +- {result['score_std']:.1f} over {cfg.episodes} episodes, "
           f"belief error {result['belief_error']:.1f} m ({how})")
     out = out_dir / "eval.json"
     out.write_text(json.dumps(result, indent=2))
     print(f"log written to {out} and {logger.path} (world 0's episode recorded: aia-log render {logger.path})")
+
+
+def _job_overrides(out_dir: str | Path) -> list[str]:
+    """The command-line overrides of a sweep job, from the ``.hydra/overrides.yaml`` Hydra saved in its folder."""
+    path = Path(out_dir) / ".hydra" / "overrides.yaml"
+    return list(OmegaConf.load(path)) if path.is_file() else []
 
 
 def _budget(planner: DictConfig) -> str:

@@ -42,10 +42,12 @@ def group_options(group: str) -> str:
 OmegaConf.register_new_resolver("aia.options", group_options, replace=True)
 
 
-def hydra_app(prog: str, config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[..., Any]]:
+def hydra_app(prog: str, config_name: str, population: str | None = None
+              ) -> Callable[[Callable[[DictConfig], Any]], Callable[..., Any]]:
     """``@hydra.main`` on ``pkg://aia.conf``/``config_name``, with invalid input ending the app with one line
     on stderr and ``SystemExit(2)``: a :class:`ConfigError` raised by the task, or a command line that Hydra
-    cannot compose."""
+    cannot compose. ``population`` is the dotted path of the app's entry for a group of jobs, which
+    ``hydra/launcher=population`` calls (kept on the task Hydra hands the launcher as ``population_task``)."""
 
     def decorate(task: Callable[[DictConfig], Any]) -> Callable[..., Any]:
         debug = False
@@ -61,6 +63,7 @@ def hydra_app(prog: str, config_name: str) -> Callable[[Callable[[DictConfig], A
                     raise
                 _exit_with(prog, err)
 
+        guarded.population_task = population
         entry = hydra.main(config_path="pkg://aia.conf", config_name=config_name, version_base="1.3")(guarded)
 
         @functools.wraps(task)

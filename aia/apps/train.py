@@ -26,7 +26,7 @@ from aia.training.stopping import StopOnSignals
 from aia.validation import validate_train_config
 
 
-@hydra_app("aia-train", config_name="train")  # invalid input: one line on stderr, exit 2
+@hydra_app("aia-train", config_name="train", population="aia.apps.train.train_jobs")  # bad input: one line, exit 2
 def main(cfg: DictConfig) -> float:
     """Entry point of ``aia-train``; returns the run's search objective (:mod:`aia.objective`)."""
     validate_train_config(cfg)

@@ -23,12 +23,19 @@ class Pruned(NamedTuple):
     """Result of :func:`prune`."""
 
     keep: Tensor  # [M] bool, in the order of the candidates
-    critical: float  # largest distance <= delta of a prunable pair (-inf if none): below it, the result changes
+    # per label: largest distance <= delta of a prunable pair of its candidates (-inf if none); below it, the
+    # label's result changes
+    criticals: list[float]
+
+    @property
+    def critical(self) -> float:
+        """The largest critical distance over all labels."""
+        return max(self.criticals)
 
 
 def prune(cost: Tensor, xy: Tensor, cov_diag: Tensor | None, group: Tensor, delta: float, eps: float = math.inf,
-          distance_offset: float = 1.0, bounds: tuple[tuple[float, float], tuple[float, float]] | None = None
-          ) -> Pruned:
+          distance_offset: float = 1.0, bounds: tuple[tuple[float, float], tuple[float, float]] | None = None,
+          labels: Tensor | None = None, num_labels: int = 1) -> Pruned:
     """Greedy suppression in ascending ``cost`` within each group (world) of ``M`` candidates.
 
     A candidate is kept unless a kept candidate of its group with a lower cost (ties: the earlier one) lies
@@ -36,14 +43,15 @@ def prune(cost: Tensor, xy: Tensor, cov_diag: Tensor | None, group: Tensor, delt
     candidate is ``eps``-redundant with respect to it: ``diag(S_n - S_m) + eps >= 0`` with ``cov_diag [M, D]``
     the covariance diagonals. The lowest-cost candidate of every group is always kept. ``bounds`` (low and
     high corner) contain every position (default: taken from ``xy``). Solved in parallel rounds over the
-    pairs within ``delta``: a candidate is decided once all that could suppress it are.
+    pairs within ``delta``: a candidate is decided once all that could suppress it are. ``labels [M]``
+    (``0 .. num_labels - 1``, one per group at most; default: all 0) split the critical distance by label.
     """
     later, earlier, sq_distance = _close_pairs(xy, group, cost, delta * delta - distance_offset, bounds)
     sq_distance = sq_distance + distance_offset
     if math.isfinite(eps) and later.numel():
         redundant = (cov_diag[later] - cov_diag[earlier] + eps >= 0).all(-1)
         later, earlier, sq_distance = later[redundant], earlier[redundant], sq_distance[redundant]
-    critical = math.sqrt(sq_distance.max().item()) if sq_distance.numel() else -math.inf
+    criticals = _criticals(sq_distance, None if labels is None else labels.index_select(0, later), num_labels)
     # Status 0: dropped, 1: undecided, 2: kept. A candidate whose earlier close neighbours include a kept one
     # is dropped; one whose earlier close neighbours are all dropped is kept.
     status = torch.ones_like(cost, dtype=torch.uint8)
@@ -54,7 +62,16 @@ def prune(cost: Tensor, xy: Tensor, cov_diag: Tensor | None, group: Tensor, delt
             break
         blocking = zeros.scatter_reduce(0, later, status.index_select(0, earlier), "amax")
         status = torch.where(undecided, 2 - blocking, status)  # 0 -> kept (2), 1 -> undecided (1), 2 -> dropped (0)
-    return Pruned(status == 2, critical)
+    return Pruned(status == 2, criticals)
+
+
+def _criticals(sq_distance: Tensor, labels: Tensor | None, num_labels: int) -> list[float]:
+    """Per label, the square root of the largest of the pairs' ``sq_distance`` (-inf: no pair)."""
+    if labels is None:
+        largest = [sq_distance.max().item()] if sq_distance.numel() else [-math.inf]
+    else:
+        largest = sq_distance.new_full((num_labels,), -math.inf).scatter_reduce(0, labels, sq_distance, "amax").tolist()
+    return [math.sqrt(value) if value >= 0 else -math.inf for value in largest]
 
 
 def _close_pairs(xy: Tensor, group: Tensor, cost: Tensor, sq_radius: float,

@@ -3,7 +3,8 @@ shrinking by ``delta_step`` until a budget is spent, and the plan: the path of t
 
 Passes that provably change nothing (``delta`` has not crossed any pairwise node distance of any level)
 are skipped without being run, so the result equals the pass-by-pass schedule; levels whose input did not
-change since the previous pass are reused. See ``docs/planner.md``.
+change since the previous pass are reused. A call may plan several budget groups of worlds at once: each
+group runs its own schedule on its own node and pass budgets, as if planned alone. See ``docs/planner.md``.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from aia.planners.tree import Expansion, Level
 
 
 class PlanResult(NamedTuple):
-    """Plans of a batch of worlds."""
+    """Plans of a batch of worlds (one budget group)."""
 
     actions: Tensor  # [W, T] primitive indices, first action first
     cost: Tensor  # [W] g of the returned leaf
@@ -48,21 +49,37 @@ class ARVIPlanner:
         self.expansion = Expansion(self.model, self.config.arc_checks, self.config.min_range)
         self.map_size = (float(env.geometry.map.width), float(env.geometry.map.height))
 
-    @torch.no_grad()
     def plan(self, pose: Tensor, mean: Tensor, cov: Tensor) -> PlanResult:
-        """Plans from robot ``pose [W, 3]`` and beliefs ``mean [W, N, 4]``, ``cov [W, N, 4, 4]``."""
+        """Plans from robot ``pose [W, 3]`` and beliefs ``mean [W, N, 4]``, ``cov [W, N, 4, 4]`` (one budget
+        group: ``max_nodes`` counts the nodes of all ``W`` worlds against ``W * max_nodes``)."""
+        return self.plan_groups(pose, mean, cov, torch.zeros(pose.shape[0], dtype=torch.long, device=pose.device))[0]
+
+    @torch.no_grad()
+    def plan_groups(self, pose: Tensor, mean: Tensor, cov: Tensor, groups: Tensor) -> list[PlanResult]:
+        """Plans of several budget groups in one batch: ``groups [W]`` labels each world ``0 .. G - 1``
+        (every label used). Result ``g`` holds group ``g``'s worlds in ascending order and equals
+        :meth:`plan` of those worlds alone under a node or pass budget; the time budget is shared by the call."""
+        groups = torch.as_tensor(groups, device=pose.device)
+        if (groups.shape != pose.shape[:1] or groups.dtype.is_floating_point or groups.dtype == torch.bool
+                or not torch.equal(groups.unique(), torch.arange(int(groups.max()) + 1, device=pose.device))):
+            raise ValueError(f"groups must label the {pose.shape[0]} worlds 0 .. G - 1, every label used, got "
+                             f"{groups.tolist()}")
         f64 = torch.float64
-        return _Search(self, pose.to(f64), mean.to(f64), cov.to(f64)).run()
+        return _Search(self, pose.to(f64), mean.to(f64), cov.to(f64), groups).run()
 
 
 class _Search:
-    """One planning call: the tree, its per-level pruning state and the anytime loop."""
+    """One planning call: the tree, its per-level pruning state and the anytime loop, per budget group."""
 
-    def __init__(self, planner: ARVIPlanner, pose: Tensor, mean: Tensor, cov: Tensor) -> None:
+    def __init__(self, planner: ARVIPlanner, pose: Tensor, mean: Tensor, cov: Tensor,
+                 groups: Tensor | None = None) -> None:
         self.planner, self.cfg = planner, planner.config
         self.start = time.perf_counter()
         num_worlds, device = pose.shape[0], pose.device
         self.num_worlds = num_worlds
+        self.group = torch.zeros(num_worlds, dtype=torch.long, device=device) if groups is None else groups
+        self.num_groups = int(self.group.max()) + 1
+        self.members = [(self.group == g).nonzero().squeeze(-1) for g in range(self.num_groups)]
         means = [mean]
         for _ in range(self.cfg.horizon):
             means.append(belief.bmm(means[-1].unsqueeze(-2), planner.model.transition.mT).squeeze(-2))
@@ -75,23 +92,26 @@ class _Search:
         self.levels = [root] + [root.empty() for _ in range(self.cfg.horizon)]
         self.open = [torch.ones(num_worlds, dtype=torch.bool, device=device)] + [
             torch.zeros(0, dtype=torch.bool, device=device) for _ in range(self.cfg.horizon)]
-        self.critical = [math.inf] * (self.cfg.horizon + 1)
+        # critical[t][g]: below this delta, level t of group g changes
+        self.critical = [[math.inf] * self.num_groups for _ in range(self.cfg.horizon + 1)]
         self.nodes = torch.zeros(num_worlds, dtype=torch.long, device=device)
-        self.total_nodes = 0  # self.nodes.sum(), kept on the host
+        self.group_nodes = [0] * self.num_groups  # nodes generated per group, kept on the host
 
     # -------------------------------------------------------------- budgets
-    def _out_of_budget(self) -> bool:
-        cfg = self.cfg
-        if cfg.time_budget is not None and time.perf_counter() - self.start >= cfg.time_budget:
-            return True
-        return cfg.max_nodes is not None and self.total_nodes >= cfg.max_nodes * self.num_worlds
+    def _out_of_time(self) -> bool:
+        return self.cfg.time_budget is not None and time.perf_counter() - self.start >= self.cfg.time_budget
+
+    def _out_of_nodes(self, group: int) -> bool:
+        max_nodes = self.cfg.max_nodes
+        return max_nodes is not None and self.group_nodes[group] >= max_nodes * self.members[group].numel()
 
     def _delta(self, k: int) -> float:
         return self.cfg.delta0 - self.cfg.delta_step * k
 
-    def _next_pass(self, k: int) -> int | None:
-        """The first pass after ``k`` whose delta falls below a critical distance (None: none ever will)."""
-        critical = max(self.critical[1:])
+    def _next_pass(self, k: int, group: int) -> int | None:
+        """The first pass after ``k`` whose delta falls below a critical distance of ``group`` (None: none
+        ever will)."""
+        critical = max(level[group] for level in self.critical[1:])
         if critical == -math.inf:
             return None
         nxt = max(k + 1, math.floor((self.cfg.delta0 - critical) / self.cfg.delta_step) + 1)
@@ -101,57 +121,102 @@ class _Search:
         return nxt
 
     # -------------------------------------------------------------- passes
-    def run(self) -> PlanResult:
-        """The greedy chain, then the passes of the schedule until a budget is spent; the plan."""
-        self._pass(math.inf, math.inf, check_budget=False)  # the greedy chain: keeps the best child only
+    def run(self) -> list[PlanResult]:
+        """The greedy chain, then each group's passes of the schedule until its budget is spent (the batch
+        runs pass ``k`` for the groups whose next pass is ``k``); one plan per group."""
+        groups = list(range(self.num_groups))
+        self._pass(math.inf, math.inf, groups, check_budget=False)  # the greedy chain: keeps the best child only
         if math.isfinite(self.cfg.eps):  # the chain ignored eps: the first real pass recomputes every level
-            self.critical = [math.inf] * (self.cfg.horizon + 1)
-        k, covered = 0, 0  # covered: passes of the schedule whose result the tree holds
-        while k is not None and (self.cfg.max_passes is None or k < self.cfg.max_passes):
-            if self._out_of_budget() or not self._pass(self._delta(k), self.cfg.eps, check_budget=True):
+            self.critical = [[math.inf] * self.num_groups for _ in self.critical]
+        limit = math.inf if self.cfg.max_passes is None else self.cfg.max_passes
+        pending = dict.fromkeys(groups, 0)  # group -> its next pass (absent: its search has ended)
+        covered = [0] * self.num_groups  # per group: passes of the schedule whose result the tree holds
+        while any(k < limit for k in pending.values()):
+            k = min(pending.values())
+            running = [g for g, next_k in pending.items() if next_k == k]
+            finished = self._pass(self._delta(k), self.cfg.eps, running, check_budget=True)
+            if finished is None:  # out of time: every group ends here
                 break
-            nxt = self._next_pass(k)
-            # The passes before the next one that changes something are covered too (None: all of them).
-            covered = min(math.inf if nxt is None else nxt, self.cfg.max_passes or math.inf)
-            covered = k + 1 if math.isinf(covered) else covered
-            k = nxt
-        return self._best_path(covered, self._delta(covered - 1) if covered else math.inf)
+            for g in running:  # the groups that finished the pass come back with their next one; a group
+                del pending[g]  # whose nodes ran out is frozen where it would have stopped alone
+            for g in finished:
+                nxt = self._next_pass(k, g)
+                # The passes before the next one that changes something are covered too (None: all of them).
+                reach = min(math.inf if nxt is None else nxt, self.cfg.max_passes or math.inf)
+                covered[g] = k + 1 if math.isinf(reach) else reach
+                if nxt is not None:
+                    pending[g] = nxt
+        return self._plans(covered)
 
-    def _pass(self, delta: float, eps: float, check_budget: bool) -> bool:
-        """One pass over the levels at ``delta``; False when a budget ran out before its end.
+    def _pass(self, delta: float, eps: float, groups: list[int], check_budget: bool) -> list[int] | None:
+        """One pass over the levels at ``delta`` for ``groups``: those that completed it (a group whose node
+        budget ran out before a level stops there), None when the time budget ran out.
 
-        A level is recomputed when the open set above it changed or ``delta`` fell below its critical
-        distance (``critical`` is +inf until a level was pruned at a finite ``delta``)."""
-        changed = False
+        A level is recomputed for a group when the group's open set above it changed or ``delta`` fell below
+        its critical distance (``critical`` is +inf until a level was pruned at a finite ``delta``)."""
+        changed = dict.fromkeys(groups, False)
         for t in range(1, self.cfg.horizon + 1):
-            if check_budget and self._out_of_budget():
-                return False
-            if changed or delta < self.critical[t] or math.isinf(delta):
-                changed = self._prune_level(t, delta, eps)
-        return True
+            if check_budget:
+                if self._out_of_time():
+                    return None
+                changed = {g: c for g, c in changed.items() if not self._out_of_nodes(g)}
+            due = [g for g, c in changed.items() if c or delta < self.critical[t][g] or math.isinf(delta)]
+            if due:
+                changed.update(self._prune_level(t, delta, eps, due))
+        return list(changed)
 
-    def _prune_level(self, t: int, delta: float, eps: float) -> bool:
-        """Expand the newly opened nodes of level ``t - 1`` and prune level ``t``; whether its open set changed."""
+    def _prune_level(self, t: int, delta: float, eps: float, groups: list[int]) -> dict[int, bool]:
+        """Expand the newly opened nodes of level ``t - 1`` and prune level ``t``, for the worlds of
+        ``groups`` only (the others' nodes keep their state); per group, whether its open set changed."""
         above, level = self.levels[t - 1], self.levels[t]
-        fresh = (self.open[t - 1] & ~above.expanded).nonzero().squeeze(-1)
+        active = None  # [W] whether a world takes part (None: all do)
+        if len(groups) < self.num_groups:
+            active = torch.zeros(self.num_groups, dtype=torch.bool, device=self.group.device)
+            active[groups] = True
+            active = active[self.group]
+        open_above = self.open[t - 1] if active is None else self.open[t - 1] & active[above.world]
+        fresh = (open_above & ~above.expanded).nonzero().squeeze(-1)
         if fresh.numel():
             children = self.planner.expansion.children(above, fresh, self.positions[t])
             above.expanded[fresh] = True
             level.append(children)
-            self.nodes += torch.bincount(children["world"], minlength=self.num_worlds)
-            self.total_nodes += children["cost"].shape[0]
-        candidates = self.open[t - 1].index_select(0, level.parent).nonzero().squeeze(-1)
+            self._count(children["world"])
+        candidates = open_above.index_select(0, level.parent).nonzero().squeeze(-1)
         diag = level.cov[candidates].diagonal(dim1=-2, dim2=-1).flatten(1) if math.isfinite(eps) else None
-        pruned = prune(level.cost[candidates], level.pose[candidates, :2], diag, level.world[candidates], delta, eps,
-                       self.cfg.distance_offset, ((0.0, 0.0), self.planner.map_size))
-        opened = torch.zeros(level.size, dtype=torch.bool, device=candidates.device)
-        opened[candidates] = pruned.keep
+        world = level.world[candidates]
+        labels = self.group.index_select(0, world) if self.num_groups > 1 else None
+        pruned = prune(level.cost[candidates], level.pose[candidates, :2], diag, world, delta, eps,
+                       self.cfg.distance_offset, ((0.0, 0.0), self.planner.map_size), labels, self.num_groups)
         previous = self.open[t]
-        changed = previous.numel() != opened.numel() or not torch.equal(previous, opened)
-        self.open[t], self.critical[t] = opened, pruned.critical
-        return changed
+        opened = torch.zeros(level.size, dtype=torch.bool, device=candidates.device)
+        if active is not None:  # the other groups' nodes stay as they are
+            opened[: previous.numel()] = previous & ~active[level.world[: previous.numel()]]
+        opened[candidates] = pruned.keep
+        self.open[t] = opened
+        for g in groups:
+            self.critical[t][g] = pruned.criticals[g]
+        # a group changed when it gained nodes or one of its nodes was opened or closed
+        differs = torch.ones(level.size, dtype=torch.bool, device=candidates.device)
+        differs[: previous.numel()] = previous != opened[: previous.numel()]
+        if self.num_groups == 1:
+            return {0: bool(differs.any())}
+        hit = torch.zeros(self.num_groups, dtype=torch.bool, device=candidates.device)
+        hit[self.group[level.world[differs]]] = True
+        hit = hit.tolist()
+        return {g: hit[g] for g in groups}
 
-    def _best_path(self, passes: int, delta: float) -> PlanResult:
+    def _count(self, world: Tensor) -> None:
+        """Count new nodes of worlds ``world`` against their worlds and groups."""
+        new = torch.bincount(world, minlength=self.num_worlds)
+        self.nodes += new
+        if self.num_groups == 1:
+            self.group_nodes[0] += world.numel()
+        else:
+            per_group = torch.zeros(self.num_groups, dtype=torch.long, device=new.device).index_add_(0, self.group, new)
+            self.group_nodes = [a + b for a, b in zip(self.group_nodes, per_group.tolist(), strict=True)]
+
+    def _plans(self, covered: list[int]) -> list[PlanResult]:
+        """Each group's plans: the path of its worlds' lowest-cost leaves, its counts and passes covered."""
         leaves = self.levels[-1]
         best = torch.full((self.num_worlds,), math.inf, dtype=torch.float64, device=leaves.cost.device)
         best = best.scatter_reduce(0, leaves.world, leaves.cost, "amin")
@@ -168,4 +233,7 @@ class _Search:
         for level in reversed(self.levels[1:]):
             actions.append(level.action[node])
             node = level.parent[node]
-        return PlanResult(torch.stack(actions[::-1], -1), best, self.nodes.clone(), passes, delta)
+        actions = torch.stack(actions[::-1], -1)
+        return [PlanResult(actions[worlds], best[worlds], self.nodes[worlds], passes,
+                           self._delta(passes - 1) if passes else math.inf)
+                for worlds, passes in zip(self.members, covered, strict=True)]

@@ -1,4 +1,4 @@
-"""The population launcher: a Hydra ``Launcher`` that trains the jobs of a sweep as populations.
+"""The population launcher: a Hydra ``Launcher`` that runs the jobs of a sweep as populations.
 
 Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_job_idx)``). This one
 
@@ -7,9 +7,11 @@ Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_
 2. groups the jobs whose configs differ only in the keys a member may set for itself
    (:data:`aia.training.MEMBER_KEYS`: seed, learning rate, epsilon schedule, resume) and says, for every job
    that must run alone, which key kept it apart;
-3. runs each group as one call of the task's population entry (``task``, a dotted path: for ``aia-train``
-   :func:`aia.apps.train.train_jobs`), groups in parallel processes up to ``n_jobs``, each with its share of
-   the cores as its torch thread pool;
+3. runs each group as one call of the app's population entry (``task``, a dotted path; by default the one
+   the app declares: for ``aia-train`` :func:`aia.apps.train.train_jobs`, which trains the group as one
+   population, for ``aia-eval`` :func:`aia.apps.evaluate.evaluate_jobs`, which plans all seeds' ARVI
+   episodes in one batch), groups in parallel processes up to ``n_jobs``, each with its share of the cores
+   as its torch thread pool;
 4. returns one ``JobReturn`` per job, completed with the job's own result or failed with its own error.
 
 Its settings are ``conf/hydra/launcher/population.yaml`` (``n_jobs``, ``task``), found by Hydra in aia's
@@ -59,7 +61,7 @@ def group_jobs(cfgs: Sequence[DictConfig]) -> tuple[list[list[int]], list[str]]:
 
 
 def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | None) -> list[tuple[bool, object]]:
-    """Train one population (in a worker process or in-process): ``(ok, result or error)`` per member."""
+    """Run one population (in a worker process or in-process): ``(ok, result or error)`` per member."""
     if threads:
         import torch
 
@@ -75,7 +77,7 @@ def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | N
 class PopulationLauncher(Launcher):
     """Launches a sweep as populations (see the module docstring)."""
 
-    def __init__(self, n_jobs: int = 2, task: str = "aia.apps.train.train_jobs") -> None:
+    def __init__(self, n_jobs: int = 2, task: str | None = None) -> None:
         self.n_jobs = n_jobs
         self.task = task
         self.config: DictConfig | None = None
@@ -90,6 +92,7 @@ class PopulationLauncher(Launcher):
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
         setup_globals()
         assert self.config is not None and self.hydra_context is not None
+        task = self._task()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
         prepared, configs = zip(*(self._prepare(initial_job_idx + i, overrides)
@@ -101,7 +104,7 @@ class PopulationLauncher(Launcher):
             print(f"population launcher: {note}")
         parallel = max(1, min(self.n_jobs, len(groups)))
         threads = max(1, (os.cpu_count() or 1) // parallel) if parallel > 1 else None
-        calls = [(self.task, [OmegaConf.to_container(configs[i]) for i in group],
+        calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],
                   [prepared[i].return_value for i in group], threads) for group in groups]
         if parallel == 1:
             outcomes = [run_group(*call) for call in calls]
@@ -114,6 +117,16 @@ class PopulationLauncher(Launcher):
                 if not ok:
                     log.error(f"job {prepared[index].hydra_cfg.hydra.job.num} failed: {result}")
         return list(prepared)
+
+    def _task(self) -> str:
+        """The population entry: ``task`` if set, else the one the app declares (``hydra_app(population=)``)."""
+        task = self.task or getattr(self.task_function, "population_task", None)
+        if task is None:
+            from aia.errors import ConfigError  # imported here: see group_jobs
+
+            raise ConfigError("hydra.launcher.task", self.task, "the dotted path of a population entry (this app "
+                              "declares none: hydra/launcher=population serves aia-train and aia-eval)")
+        return task
 
     def _prepare(self, index: int, overrides: Sequence[str]) -> tuple[JobReturn, DictConfig]:
         """The job's folder and ``.hydra/`` configs by Hydra's ``run_job`` (its return value is the folder),

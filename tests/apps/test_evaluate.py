@@ -6,9 +6,11 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from hydra import compose, initialize_config_module
 
+import aia.apps.evaluate as evaluate_app
 from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner
 from aia.logging import read_run
 from aia.training import train
@@ -85,3 +87,50 @@ def test_app_runs_arvi(tmp_path):  # an unknown policy is named in tests/apps/te
     assert " m (horizon 12, budget 0.02 s)" in result.stdout
     written = json.loads((tmp_path / "eval.json").read_text())
     assert written["policy"] == "arvi" and written["belief_error"] > 0
+
+
+def _eval_app(monkeypatch, *overrides: str) -> None:
+    """``aia-eval <overrides>`` in-process (``main()`` with ``sys.argv`` patched)."""
+    monkeypatch.setattr(sys, "argv", ["aia-eval", *overrides])
+    evaluate_app.main()
+
+
+def test_population_launcher_plans_all_seeds_in_one_batch_as_each_seed_alone(tmp_path, monkeypatch, capsys):
+    """``-m seed=0,1 hydra/launcher=population``: one batch, a budget group per seed; every job's eval.json and
+    run.mcap (scores, config, world 0's recorded episode) equal the seed's own ``aia-eval`` run's."""
+    # small2 at 800 nodes: one budget shared by the batch would change the plans of seed 1's world 0
+    small = ["policy=arvi", "env=small2", "episodes=2", "env.max_steps=10", "planner.time_budget=null",
+             "planner.max_nodes=800", "threads=1"]
+    _eval_app(monkeypatch, "-m", *small, "seed=0,1", "hydra/launcher=population", f"hydra.sweep.dir={tmp_path}")
+    out = capsys.readouterr().out
+    assert "2 jobs in 1 population(s) of 2 member(s)" in out and out.count("arvi: score") == 2
+    for seed in (0, 1):
+        _eval_app(monkeypatch, *small, f"seed={seed}", f"hydra.run.dir={tmp_path / f'alone{seed}'}")
+        together, alone = tmp_path / str(seed), tmp_path / f"alone{seed}"
+        assert json.loads((together / "eval.json").read_text()) == json.loads((alone / "eval.json").read_text())
+        runs = read_run(together / "run.mcap"), read_run(alone / "run.mcap")
+        assert runs[0].config() == runs[1].config() and runs[0].config_value("seed") == seed
+        for topic in ("eval/episode_score", "eval/score", "eval/score_std", "eval/belief_error"):
+            assert runs[0].scalars(topic).values.tolist() == runs[1].scalars(topic).values.tolist()
+        (info, frames), (alone_info, alone_frames) = (run.episode("first") for run in runs)
+        assert (info.episode, info.frame, info.num_targets) == (alone_info.episode, alone_info.frame, 2)
+        assert len(frames) == 11
+        for frame, alone_frame in zip(frames, alone_frames, strict=True):
+            assert frame.step == alone_frame.step and np.array_equal(frame.robot_pose, alone_frame.robot_pose)
+            assert np.array_equal(frame.belief_cov, alone_frame.belief_cov)
+            assert np.array_equal(frame.targets, alone_frame.targets)
+    first, second = (json.loads((tmp_path / str(s) / "eval.json").read_text())["scores"] for s in (0, 1))
+    assert first != second
+
+
+def test_population_launcher_runs_checkpoint_jobs_one_by_one_and_a_bad_job_fails_alone(tmp_path, monkeypatch,
+                                                                                       checkpoint):
+    with pytest.raises(SystemExit) as info:  # Hydra reports the failed jobs once the sweep has ended
+        _eval_app(monkeypatch, "-m", f"checkpoint={checkpoint}", "episodes=2", "seed=0,1", "epsilon=0.05,1.5",
+                  "hydra/launcher=population", "hydra.launcher.n_jobs=1", f"hydra.sweep.dir={tmp_path}")
+    assert info.value.code == 2
+    for job, seed in ((0, 0), (2, 1)):  # jobs 1 and 3 have epsilon=1.5
+        written = json.loads((tmp_path / str(job) / "eval.json").read_text())
+        assert written["scores"] == evaluate_checkpoint(checkpoint, 2, 0.05, seed, "cpu")["scores"]
+        assert read_run(tmp_path / str(job) / "run.mcap").metadata["run"]["seed"] == str(seed)
+    assert not (tmp_path / "1" / "eval.json").exists() and not (tmp_path / "3" / "run.mcap").exists()

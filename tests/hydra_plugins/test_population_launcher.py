@@ -93,3 +93,15 @@ def test_a_job_that_differs_from_all_others_runs_alone_and_says_why(tmp_path, mo
     returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs)
     assert "job 2 runs alone: its hidden=[24] differs from job 0's [16]" in out
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 3
+
+
+def test_an_app_without_a_population_entry_is_named(tmp_path, monkeypatch, capsys):
+    import aia.apps.rollout as rollout_app
+
+    monkeypatch.setattr(sys, "argv", ["aia-rollout", "-m", "seed=0,1", "hydra/launcher=population",
+                                      f"hydra.sweep.dir={tmp_path}"])
+    with pytest.raises(SystemExit) as info:
+        rollout_app.main()
+    assert info.value.code == 2
+    assert "hydra.launcher.task=None: expected the dotted path of a population entry" in capsys.readouterr().err
+    assert not (tmp_path / "0").exists()  # refused before any job was prepared

@@ -89,8 +89,8 @@ def test_skipped_passes_change_nothing():
     pose, mean, cov = _scene()
     planner = ARVIPlanner(env, _config(max_passes=27))
     schedule = search._Search(planner, pose.double(), mean.double(), cov.double())
-    schedule._next_pass = lambda k: k + 1  # the plain schedule: every pass runs
-    plain = schedule.run()
+    schedule._next_pass = lambda k, group: k + 1  # the plain schedule: every pass runs
+    plain = schedule.run()[0]
     fast = planner.plan(pose, mean, cov)
     assert torch.equal(plain.actions, fast.actions) and torch.equal(plain.nodes, fast.nodes)
     assert plain.cost.item() == fast.cost.item() and plain.delta == fast.delta
