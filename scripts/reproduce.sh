@@ -15,12 +15,13 @@
 #                hydra/launcher=population);  OUT  output folder [outputs/repro]
 #   FIGURES      where the figures and tables go [$OUT/figures]
 #   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
-#   ARVI_EPISODES  episodes per ARVI seed [5]; all seeds' episodes are planned in one batch (one process,
-#                hydra/launcher=population), each seed a budget group of its own
-#   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's], shared by the whole batch
+#   ARVI_EPISODES  episodes per ARVI seed, planned together in one batch [5]
+#   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's], shared by a seed's episodes; each seed
+#                plans in its own process, $JOBS at a time
 #   ARVI_NODES   if set, a deterministic budget of this many nodes per world instead of ARVI_BUDGET
-#                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU); each seed's
-#                results then equal those of its own aia-eval run
+#                (25000 is about what one world's 1 s search generates on a 2-core laptop CPU); the seeds then
+#                plan in $JOBS processes (hydra/launcher=population, split_to_fill), each seed a budget group
+#                of its own, so each seed's results equal those of its own aia-eval run
 #   ARVI_MIN_RANGES  planner.min_range values, one ARVI baseline each [0 2]: 0 is ARVI as specified,
 #                2 keeps the plan off the belief mean (docs/planner.md, "Minimum planning range");
 #                ARVI_MIN_RANGES= (empty) runs no ARVI, e.g. to add learner seeds
@@ -40,9 +41,12 @@ ARVI_BUDGET=${ARVI_BUDGET:-1.0}
 METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
 ARVI_MIN_RANGES=${ARVI_MIN_RANGES-"0 2"}  # set but empty: no ARVI runs
 if [[ -n "${ARVI_NODES:-}" ]]; then
-  ARVI_LIMIT=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
+  # a node budget is each seed's own in a batch: all seeds in $JOBS processes
+  ARVI_LIMIT=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES" hydra/launcher=population
+              hydra.launcher.split_to_fill=true)
 else
-  ARVI_LIMIT=("planner.time_budget=$ARVI_BUDGET")
+  # a wall-clock budget is shared by everything planned together: one process per seed
+  ARVI_LIMIT=("planner.time_budget=$ARVI_BUDGET" hydra/launcher=local)
 fi
 RUN_NAME='hydra.sweep.subdir=${hydra.job.override_dirname}'
 FRAMES_OVERRIDE=()
@@ -70,9 +74,9 @@ for setting in $SETTINGS; do
   for min_range in $ARVI_MIN_RANGES; do
     name=arvi; label=ARVI
     if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
-    echo "== $setting: $label (seeds $ARVI_SEEDS, planned in one batch)"
-    aia-eval -m hydra/launcher=population policy=arvi "env=$setting" "seed=$ARVI_SEEDS" "episodes=$ARVI_EPISODES" \
-      threads=1 "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
+    echo "== $setting: $label (seeds $ARVI_SEEDS)"
+    aia-eval -m "hydra.launcher.n_jobs=$JOBS" policy=arvi "env=$setting" "seed=$ARVI_SEEDS" \
+      "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
       'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
   done

@@ -60,6 +60,18 @@ def group_jobs(cfgs: Sequence[DictConfig]) -> tuple[list[list[int]], list[str]]:
     return grouped, notes
 
 
+def split_to_fill(groups: list[list[int]], processes: int) -> list[list[int]]:
+    """``groups`` with the largest split in two (its first half keeps its place) until there are ``processes``
+    of them or none has two jobs left: work for every process when a sweep has fewer populations."""
+    groups = [list(g) for g in groups]
+    while len(groups) < processes and max(len(g) for g in groups) > 1:
+        index = max(range(len(groups)), key=lambda i: len(groups[i]))
+        group = groups[index]
+        half = (len(group) + 1) // 2
+        groups[index:index + 1] = [group[:half], group[half:]]
+    return groups
+
+
 def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | None) -> list[tuple[bool, object]]:
     """Run one population (in a worker process or in-process): ``(ok, result or error)`` per member."""
     if threads:
@@ -77,9 +89,10 @@ def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | N
 class PopulationLauncher(Launcher):
     """Launches a sweep as populations (see the module docstring)."""
 
-    def __init__(self, n_jobs: int = 2, task: str | None = None) -> None:
+    def __init__(self, n_jobs: int = 2, task: str | None = None, split_to_fill: bool = False) -> None:
         self.n_jobs = n_jobs
         self.task = task
+        self.split_to_fill = split_to_fill
         self.config: DictConfig | None = None
         self.hydra_context: HydraContext | None = None
         self.task_function: TaskFunction | None = None
@@ -102,6 +115,10 @@ class PopulationLauncher(Launcher):
         print(f"population launcher: {len(prepared)} jobs in {len(groups)} population(s) of {sizes} member(s)")
         for note in notes:
             print(f"population launcher: {note}")
+        if self.split_to_fill and len(groups) < self.n_jobs:
+            groups = split_to_fill(groups, self.n_jobs)
+            print(f"population launcher: split into {len(groups)} processes of "
+                  f"{', '.join(str(len(g)) for g in groups)} member(s) (split_to_fill)")
         parallel = max(1, min(self.n_jobs, len(groups)))
         threads = max(1, (os.cpu_count() or 1) // parallel) if parallel > 1 else None
         calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],

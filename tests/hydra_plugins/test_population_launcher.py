@@ -105,3 +105,16 @@ def test_an_app_without_a_population_entry_is_named(tmp_path, monkeypatch, capsy
     assert info.value.code == 2
     assert "hydra.launcher.task=None: expected the dotted path of a population entry" in capsys.readouterr().err
     assert not (tmp_path / "0").exists()  # refused before any job was prepared
+
+
+@pytest.mark.parametrize("groups, processes, expected", [
+    ([[0, 1, 2, 3, 4]], 2, [[0, 1, 2], [3, 4]]),
+    ([[0, 1, 2, 3, 4]], 4, [[0], [1], [2], [3, 4]]),  # ties: the first of the largest
+    ([[0, 1], [2, 3, 4, 5]], 3, [[0, 1], [2, 3], [4, 5]]),
+    ([[0], [1]], 4, [[0], [1]]),  # no group left to split
+    ([[0, 1, 2]], 1, [[0, 1, 2]]),  # enough processes already
+])
+def test_split_to_fill_splits_the_largest_group_until_every_process_has_one(groups, processes, expected):
+    from hydra_plugins.aia_population_launcher.population_launcher import split_to_fill
+
+    assert split_to_fill(groups, processes) == expected
