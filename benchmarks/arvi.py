@@ -96,7 +96,7 @@ def load_baseline(commit: str):
 
 def measure_throughput(setting: str, num_worlds: int, nodes: int, states: int, device: str, baseline) -> dict:
     """Nodes generated per second per call (all worlds together) at ``nodes`` per world: this planner and
-    ``baseline``'s, on the same ``states`` batches (median), and whether their plans are identical."""
+    ``baseline``'s, on the same ``states`` batches (median and range), and whether their plans are identical."""
     env = make_env(setting, batch_size=num_worlds, device=device, seed=0, transforms=False)
     batches = planning_states(setting, num_worlds, states, device)
     row = {"setting": setting, "targets": env.num_targets, "worlds": num_worlds, "nodes_per_world": nodes,
@@ -114,6 +114,7 @@ def measure_throughput(setting: str, num_worlds: int, nodes: int, states: int, d
             rates.append(result.nodes.sum().item() / (time.perf_counter() - start))
             plans[name].append(result.actions)
         row[f"{name}_nodes_per_s"] = statistics.median(rates)
+        row[f"{name}_nodes_per_s_range"] = [min(rates), max(rates)]
     row["identical_plans"] = all(torch.equal(a, b) for a, b in zip(plans["new"], plans["old"], strict=True))
     row["ratio"] = row["new_nodes_per_s"] / row["old_nodes_per_s"]
     return row
