@@ -32,8 +32,9 @@ class MemberReplay:
 
     :meth:`extend` takes ``[T, P]`` transitions (``T`` per member), :meth:`sample` returns ``[P, batch_size]``,
     member ``k``'s row drawn from member ``k``'s own transitions only. The storage takes its keys, shapes and
-    dtypes from the first transitions written. :meth:`sample` fills one batch allocated once and returns it
-    each time: a caller reads a batch before sampling the next (as an update step does).
+    dtypes from the first transitions written. :meth:`sample` fills one batch allocated once and returns a
+    shallow copy of it: its tensors are overwritten by the next sample, so a caller reads a batch before
+    sampling the next (as an update step does).
     """
 
     def __init__(self, capacity: int, batch_size: int, seeds: Sequence[int], device: torch.device | str = "cpu"
@@ -77,7 +78,9 @@ class MemberReplay:
         flat = (rows * self.num_members + self.members).flatten()  # row-major index into [capacity * P]
         for _, leaf, out in self._flat_leaves:
             torch.index_select(leaf, 0, flat, out=out)
-        return self._batch
+        # A shallow copy (34 us): keys the loss writes into a batch must not reach the next one, whose changed
+        # key set would make a compiled update step recompile (a guard on the TensorDict's keys).
+        return self._batch.copy()
 
     def member_state(self, member: int) -> dict:
         """Member ``member``'s rows (in their storage order), the write cursor and its sampler's count: what

@@ -89,3 +89,12 @@ def test_empty_member_state_round_trip():
     restored = MemberReplay(capacity=4, batch_size=2, seeds=[1])
     restored.load_member_state(0, state)
     assert len(restored) == 0
+
+
+def test_keys_a_loss_writes_into_a_batch_do_not_reach_the_next_batch():
+    # a changed key set makes a compiled update step recompile (a guard on the TensorDict's keys)
+    replay = MemberReplay(capacity=4, batch_size=2, seeds=[1])
+    replay.extend(_transitions(0, 4, [0]))
+    batch = replay.sample()
+    batch["td_error"] = torch.zeros(1, 2)
+    assert set(replay.sample().keys()) == {"id", "observation"}
