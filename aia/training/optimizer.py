@@ -20,11 +20,14 @@ own arithmetic traced into the graph, which recomputed its bias corrections per 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torch import Tensor
+from torch._dynamo.exc import BackendCompilerFailed
+from torch._inductor.exc import InductorError
 from torchrl.objectives import HardUpdate, LossModule
 
 from aia.compiling import compiled_update
@@ -71,7 +74,10 @@ class Updater:
     ``compile=True`` runs :func:`update_step` as one ``torch.compile`` graph (forward, backward, clipping and
     Adam fused; the first call compiles; :func:`aia.compiling.compiled_update`: the loss module's settings
     must not change after that call); eager and compiled agree up to float rounding. The hard target-network
-    copy (``target_updater.step()``) stays outside the graph.
+    copy (``target_updater.step()``) stays outside the graph. If inductor fails to compile the step, the
+    updater says so in one line and runs it eager from then on: torch 2.13's CPU backend crashes on the step
+    of two or more members (``KeyError: 'bufN'`` in its outer-loop fusion, pytorch/pytorch#196570), and a
+    compiler bug must not end a run that eager mode trains correctly.
     """
 
     def __init__(self, loss: LossModule, optimizer: StackedAdam, target_updater: HardUpdate,
@@ -86,8 +92,18 @@ class Updater:
         """Update on ``batch`` (``[P, B]``); returns the ``[P]`` members' mean losses, detached."""
         opt = self.optimizer
         opt.advance()
-        losses = self._step(self.loss, batch, opt.params, opt.exp_avgs, opt.exp_avg_sqs, opt.step_sizes,
-                            opt.bias_correction2_sqrt, self.grad_clip, *opt.betas, opt.eps)
+        args = (self.loss, batch, opt.params, opt.exp_avgs, opt.exp_avg_sqs, opt.step_sizes,
+                opt.bias_correction2_sqrt, self.grad_clip, *opt.betas, opt.eps)
+        try:
+            losses = self._step(*args)
+        except (InductorError, BackendCompilerFailed) as err:  # raised while compiling, before the step ran
+            if self._step is update_step:
+                raise
+            reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            print(f"compile.update: torch.compile could not compile the update step ({reason[:200]}); "
+                  "it runs eager", file=sys.stderr)
+            self._step = update_step
+            losses = self._step(*args)
         self.target_updater.step()
         return losses
 

@@ -8,10 +8,11 @@ import torch
 from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
+import aia.training.optimizer as optimizer_module
 from aia.envs import make_env
 from aia.modules.q_networks import make_qvalue_actor
 from aia.training.components import make_loss, make_stacked_network
-from aia.training.optimizer import StackedAdam, Updater
+from aia.training.optimizer import StackedAdam, Updater, update_step
 
 
 def _config(*overrides: str):
@@ -35,10 +36,11 @@ def _setup(algo: str, seeds: tuple[int, ...], lrs: tuple[float, ...] | None = No
     return loss, optimizer, target_updater, batches, clip
 
 
-def _run(setup, compile: bool, updates: int = 6) -> tuple[torch.Tensor, list[torch.Tensor]]:
+def _run(setup, compile: bool, updates: int = 6, falls_back: bool = False) -> tuple[torch.Tensor, list[torch.Tensor]]:
     loss, optimizer, target_updater, batches, clip = setup
     update = Updater(loss, optimizer, target_updater, clip, compile)
     losses = torch.stack([update(batches[i % 3].clone()) for i in range(updates)])
+    assert (update._step is update_step) == (not compile or falls_back)  # compiled unless it fell back to eager
     return losses, [p.detach().clone() for p in optimizer.params]
 
 
@@ -87,6 +89,24 @@ def test_compiled_update_gives_the_eager_losses_and_parameters(algo):
     torch.testing.assert_close(losses, eager_losses, rtol=1e-5, atol=1e-5)
     for p, q in zip(params, eager_params, strict=True):
         torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-5)
+
+
+def test_an_update_step_inductor_cannot_compile_runs_eager_and_says_so(monkeypatch, capsys):
+    # torch 2.13's CPU inductor fails on the step of 2+ members of the paper's networks (pytorch#196570)
+    from torch._inductor.exc import InductorError
+
+    def failing_compile(fn):
+        def compiled(*args):
+            raise InductorError(KeyError("buf54"), None)
+        return compiled
+
+    eager_losses, eager_params = _run(_setup("dqn", (0, 1)), compile=False)
+    monkeypatch.setattr(optimizer_module, "compiled_update", failing_compile)
+    losses, params = _run(_setup("dqn", (0, 1)), compile=True, falls_back=True)
+    assert torch.equal(losses, eager_losses) and all(map(torch.equal, params, eager_params))
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == ["compile.update: torch.compile could not compile the update step (KeyError: 'buf54'); it runs "
+                     "eager"]
 
 
 def test_stacked_adam_needs_one_positive_rate_per_member():
