@@ -71,10 +71,11 @@ class StackedAdam:
 class Updater:
     """One optimiser step per call: per-member losses, gradients, clipping, Adam, target bookkeeping.
 
-    ``compile=True`` runs :func:`update_step` as one ``torch.compile`` graph (forward, backward, clipping and
-    Adam fused; the first call compiles; :func:`aia.compiling.compiled_update`: the loss module's settings
-    must not change after that call); eager and compiled agree up to float rounding. The hard target-network
-    copy (``target_updater.step()``) stays outside the graph. If inductor fails to compile the step, the
+    ``compile=True`` runs :func:`update_step` through ``torch.compile`` (forward, backward, clipping and Adam
+    fused, in one graph for one member and two for more; the first call compiles;
+    :func:`aia.compiling.compiled_update`: the loss module's settings must not change after that call); eager
+    and compiled agree up to float rounding. The hard target-network copy (``target_updater.step()``) stays
+    outside the graphs. If inductor fails to compile the step, the
     updater says so in one line and runs it eager from then on: a compiler bug must not end a run that eager
     mode trains correctly (torch 2.13's CPU backend crashed on the one-graph step of two or more members,
     pytorch/pytorch#196570, until :func:`update_step` split it in two graphs).
