@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -26,10 +25,9 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import StepCounter
 
-from aia.apps.hydra_app import hydra_app
+from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.errors import ConfigError
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.modules import EpsilonGreedy
@@ -146,19 +144,8 @@ def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[
     """The population launcher's task (``hydra/launcher=population``): the jobs' configs, which differ only
     in ``seed``, evaluated together by :func:`run_jobs`, job ``k`` writing to ``out_dirs[k]``; each job's score
     mean, or the error that stopped it (an invalid config fails its own job only: the others run without it)."""
-    outcomes: dict[int, float | Exception] = {}
-    valid = []
-    for index, (cfg, out_dir) in enumerate(zip(cfgs, out_dirs, strict=True)):
-        try:
-            validate_eval_config(cfg, _job_overrides(out_dir))
-            valid.append(index)
-        except ConfigError as err:
-            print(f"aia-eval: error: job {index}: {err}", file=sys.stderr)
-            outcomes[index] = err
-    if valid:
-        scores = run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid])
-        outcomes.update(zip(valid, scores, strict=True))
-    return [outcomes[index] for index in range(len(cfgs))]
+    return run_valid_jobs("aia-eval", cfgs, lambda k, cfg: validate_eval_config(cfg, _job_overrides(out_dirs[k])),
+                          lambda valid: run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid]))
 
 
 def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float]:

@@ -14,7 +14,7 @@ import functools
 import logging
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,25 @@ def group_options(group: str) -> str:
 
 
 OmegaConf.register_new_resolver("aia.options", group_options, replace=True)
+
+
+def run_valid_jobs(prog: str, cfgs: Sequence[DictConfig], validate: Callable[[int, DictConfig], None],
+                   run: Callable[[list[int]], Sequence[Any]]) -> list[Any]:
+    """A population entry's results, one per job in order: a job whose config ``validate(k, cfg)`` refuses
+    (a :class:`ConfigError`) fails alone with its one line, ``<prog>: error: job k: ...``; ``run`` gets the
+    valid jobs' indices (none: not called) and returns their results in that order."""
+    outcomes: dict[int, Any] = {}
+    valid = []
+    for index, cfg in enumerate(cfgs):
+        try:
+            validate(index, cfg)
+            valid.append(index)
+        except ConfigError as err:
+            print(f"{prog}: error: job {index}: {err}", file=sys.stderr)
+            outcomes[index] = err
+    if valid:
+        outcomes.update(zip(valid, run(valid), strict=True))
+    return [outcomes[index] for index in range(len(cfgs))]
 
 
 def hydra_app(prog: str, config_name: str, population: str | None = None

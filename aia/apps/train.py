@@ -16,8 +16,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from aia.apps.hydra_app import hydra_app
-from aia.errors import ConfigError
+from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.objective import search_objective
 from aia.timing import PhaseTimer
 from aia.training import TrainingState, train, train_population
@@ -45,16 +44,7 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
     """The population launcher's task (``hydra/launcher=population``): the jobs' configs trained as one
     population, member ``k`` in ``out_dirs[k]``; each job's search objective, or the error that stopped it
     (an invalid config fails its own job only: the others train without it)."""
-    outcomes: dict[int, float | Exception] = {}
-    valid = []
-    for index, cfg in enumerate(cfgs):
-        try:
-            validate_train_config(cfg)
-            valid.append(index)
-        except ConfigError as err:
-            print(f"aia-train: error: job {index}: {err}", file=sys.stderr)
-            outcomes[index] = err
-    if valid:
+    def train_valid(valid: list[int]) -> list[float]:
         first = cfgs[valid[0]]
         print(f"training {first.algo.name} ({first.exploration.name}) for {first.frames} frames as a population of "
               f"{len(valid)}, seeds {[cfgs[i].seed for i in valid]}")
@@ -62,9 +52,10 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
             states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop)
         for index, state in zip(valid, states, strict=True):
             report(cfgs[index], out_dirs[index], state)
-            outcomes[index] = search_objective(state.eval_scores)
         exit_if_stopped(stop, [out_dirs[i] for i in valid], states[0])
-    return [outcomes[index] for index in range(len(cfgs))]
+        return [search_objective(state.eval_scores) for state in states]
+
+    return run_valid_jobs("aia-train", cfgs, lambda _, cfg: validate_train_config(cfg), train_valid)
 
 
 def exit_if_stopped(stop: StopOnSignals, out_dirs: Sequence[Path], state: TrainingState) -> None:
