@@ -50,8 +50,8 @@ class MemberReplay:
         self._uniforms = rng.CounterStream(rng.uniform, self.keys, 0, batch_size)  # counter: batches drawn
         self._rows: TensorDictBase | None = None  # [capacity, P], allocated by the first write
         self._batch: TensorDictBase | None = None  # [P, batch_size], what sample fills
-        self._leaves: list[tuple[NestedKey, torch.Tensor, torch.Tensor]] = []  # key, rows' leaf, batch's leaf
-        self._flat_leaves: list[tuple[NestedKey, torch.Tensor, torch.Tensor]] = []  # views: [capacity * P], [P * B]
+        self._leaves: list[tuple[NestedKey, torch.Tensor]] = []  # each key and its leaf of the rows
+        self._flat_leaves: list[tuple[torch.Tensor, torch.Tensor]] = []  # views: rows [capacity * P], batch [P * B]
 
     def __len__(self) -> int:
         return self.size
@@ -67,7 +67,7 @@ class MemberReplay:
         if self._rows is None:
             self._allocate(transitions[0])
         rows = (torch.arange(T, device=self.device) + self.cursor) % self.capacity
-        for key, leaf, _ in self._leaves:
+        for key, leaf in self._leaves:
             leaf.index_copy_(0, rows, transitions.get(key))
         self.cursor = (self.cursor + T) % self.capacity
         self.size = min(self.size + T, self.capacity)
@@ -76,7 +76,7 @@ class MemberReplay:
         """``[P, batch_size]`` transitions, member ``k``'s drawn uniformly (with replacement) from its rows."""
         rows = (self._uniforms.next() * self.size).long()
         flat = (rows * self.num_members + self.members).flatten()  # row-major index into [capacity * P]
-        for _, leaf, out in self._flat_leaves:
+        for leaf, out in self._flat_leaves:
             torch.index_select(leaf, 0, flat, out=out)
         # A shallow copy (34 us): keys the loss writes into a batch must not reach the next one, whose changed
         # key set would make a compiled update step recompile (a guard on the TensorDict's keys).
@@ -106,6 +106,6 @@ class MemberReplay:
         step = step.to(self.device)
         self._rows = step.unsqueeze(0).expand(self.capacity, self.num_members).clone()
         self._batch = step.unsqueeze(-1).expand(self.num_members, self.batch_size).clone()
-        self._leaves = [(key, self._rows.get(key), self._batch.get(key))
-                        for key in self._rows.keys(include_nested=True, leaves_only=True)]
-        self._flat_leaves = [(key, rows.flatten(0, 1), batch.flatten(0, 1)) for key, rows, batch in self._leaves]
+        keys = list(self._rows.keys(include_nested=True, leaves_only=True))
+        self._leaves = [(key, self._rows.get(key)) for key in keys]
+        self._flat_leaves = [(self._rows.get(key).flatten(0, 1), self._batch.get(key).flatten(0, 1)) for key in keys]
