@@ -42,11 +42,11 @@ METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
 ARVI_MIN_RANGES=${ARVI_MIN_RANGES-"0 2"}  # set but empty: no ARVI runs
 if [[ -n "${ARVI_NODES:-}" ]]; then
   # a node budget is each seed's own in a batch: all seeds in $JOBS processes
-  ARVI_LIMIT=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES" hydra/launcher=population
+  ARVI_BUDGET_AND_LAUNCHER=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES" hydra/launcher=population
               hydra.launcher.split_to_fill=true)
 else
   # a wall-clock budget is shared by everything planned together: one process per seed
-  ARVI_LIMIT=("planner.time_budget=$ARVI_BUDGET" hydra/launcher=local)
+  ARVI_BUDGET_AND_LAUNCHER=("planner.time_budget=$ARVI_BUDGET" hydra/launcher=local)
 fi
 RUN_NAME='hydra.sweep.subdir=${hydra.job.override_dirname}'
 FRAMES_OVERRIDE=()
@@ -76,7 +76,7 @@ for setting in $SETTINGS; do
     if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
     echo "== $setting: $label (seeds $ARVI_SEEDS)"
     aia-eval -m "hydra.launcher.n_jobs=$JOBS" policy=arvi "env=$setting" "seed=$ARVI_SEEDS" \
-      "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_LIMIT[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
+      "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_AND_LAUNCHER[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
       'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
   done
