@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Reproduce the paper's comparison (SPEC 11): for each setting, DQN, Double DQN, ADFQ-egreedy and ADFQ-TS with
 # 5 seeds each, ARVI with 10 seeds, then the Fig. 2 curves, a results table and a Fig. 3-style trajectory
-# picture of a learned ADFQ-TS policy. Everything is logged to MCAP under $OUT.
+# picture of a learned ADFQ-TS policy. Everything is logged to MCAP under $OUT; each phase prints its wall time
+# and appends it to $OUT/wall_time.tsv.
 #
 #   scripts/reproduce.sh                                  # the whole protocol (hours on a laptop CPU)
 #   SETTINGS="empty1" SEEDS=0,1 FRAMES=2000 ARVI_SEEDS=0,1 scripts/reproduce.sh   # a quick smoke run
@@ -59,14 +60,28 @@ declare -A WHERE=(
   [small2]="--where env.map=empty_small --where env.num_targets=2"
   [small3]="--where env.map=empty_small --where env.num_targets=3"
 )
-mkdir -p "$FIGURES"
+mkdir -p "$OUT" "$FIGURES"
 start=$(date +%s)
+phase_name=""
+phase_start=$start
+# phase NAME: end the running phase, print and record its wall time in $OUT/wall_time.tsv, and start NAME
+phase() {
+  local now
+  now=$(date +%s)
+  if [[ -n "$phase_name" ]]; then
+    echo "-- $phase_name: $(( now - phase_start )) s"
+    printf '%s\t%s\n' "$phase_name" "$(( now - phase_start ))" >> "$OUT/wall_time.tsv"
+  fi
+  phase_name=$1
+  phase_start=$now
+  if [[ -n "$phase_name" ]]; then echo "== $phase_name"; fi
+}
 for setting in $SETTINGS; do
   if [[ -z "${WHERE[$setting]:-}" ]]; then
     echo "unknown setting '$setting': expected some of empty1 obstacles1 small2 small3" >&2
     exit 2
   fi
-  echo "== $setting: learners (seeds $SEEDS), one population per method, $JOBS at a time"
+  phase "$setting: learners (seeds $SEEDS), one population per method, $JOBS at a time"
   aia-train -m hydra/launcher=population "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
     "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners" \
     "$RUN_NAME" 'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
@@ -74,17 +89,17 @@ for setting in $SETTINGS; do
   for min_range in $ARVI_MIN_RANGES; do
     name=arvi; label=ARVI
     if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
-    echo "== $setting: $label (seeds $ARVI_SEEDS)"
+    phase "$setting: $label (seeds $ARVI_SEEDS)"
     aia-eval -m "hydra.launcher.n_jobs=$JOBS" policy=arvi "env=$setting" "seed=$ARVI_SEEDS" \
       "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_AND_LAUNCHER[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
       'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
   done
-  echo "== $setting: Fig. 2 curves and results table"
+  phase "$setting: Fig. 2 curves and results table"
   # shellcheck disable=SC2086  # WHERE holds several words on purpose
   aia-log plot "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration --x episode \
     --window 4 "${baselines[@]}" --title "$setting" --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
-  echo "== $setting: Fig. 3-style trajectory of the first ADFQ-TS seed"
+  phase "$setting: Fig. 3-style trajectory of the first ADFQ-TS seed"
   config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
   if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; continue; fi
   run=$(dirname "$(dirname "$config")")
@@ -94,4 +109,5 @@ for setting in $SETTINGS; do
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
     --out "$FIGURES/${setting}_trajectory.png"
 done
-echo "done in $(( $(date +%s) - start )) s; figures and tables in $FIGURES"
+phase ""
+echo "done in $(( $(date +%s) - start )) s (each phase's in $OUT/wall_time.tsv); figures and tables in $FIGURES"
