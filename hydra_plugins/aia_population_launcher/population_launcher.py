@@ -108,8 +108,12 @@ class PopulationLauncher(Launcher):
         task = self._task()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
+        for i, overrides in enumerate(job_overrides):
+            log.info(f"\t#{initial_job_idx + i} : {' '.join(filter_overrides(overrides))}")
         prepared, configs = zip(*(self._prepare(initial_job_idx + i, overrides)
                                   for i, overrides in enumerate(job_overrides)), strict=True)
+        # run_job configured each job's logging while preparing its folder: back to the launcher's own
+        configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         groups, notes = group_jobs(configs)
         sizes = ", ".join(str(len(g)) for g in groups)
         print(f"population launcher: {len(prepared)} jobs in {len(groups)} population(s) of {sizes} member(s)")
@@ -149,7 +153,6 @@ class PopulationLauncher(Launcher):
         """The job's folder and ``.hydra/`` configs by Hydra's ``run_job`` (its return value is the folder),
         and its task config resolved in the job's own Hydra context."""
         assert self.config is not None and self.hydra_context is not None
-        log.info(f"\t#{index} : {' '.join(filter_overrides(overrides))}")
         sweep_config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
         with open_dict(sweep_config):
             sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{index}"

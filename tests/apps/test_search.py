@@ -27,16 +27,19 @@ def test_paper_search_composes_a_maximising_optuna_sweeper():
     assert sweeper.sampler._target_ == "optuna.samplers.TPESampler" and sweeper.sampler.seed == 0
 
 
-def test_a_four_trial_study_returns_the_lr_of_its_best_run(tmp_path):
+@pytest.mark.parametrize("launcher", ["local", "population"])  # population: a batch's trials train together
+def test_a_four_trial_study_returns_the_lr_of_its_best_run(tmp_path, launcher):
     storage = f"sqlite:///{tmp_path / 'study.db'}"  # the sqlite storage needs the pins of the `search` extra
     result = subprocess.run(
         [sys.executable, "-m", "aia.apps.train", "-m", "hydra/sweeper=paper_search", f"hydra.sweeper.n_trials={TRIALS}",
-         f"hydra.sweeper.storage={storage}", "hydra.sweeper.study_name=tiny", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+         f"hydra.sweeper.storage={storage}", "hydra.sweeper.study_name=tiny", f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path / 'sweep'}",
          "frames=100", "warmup_frames=50", "env.max_steps=50", "eval.episodes=2", "eval.per_rollout=1",
          "logger.record_every_evaluations=0", "threads=1"],
         capture_output=True, text=True, timeout=300,
     )
     assert result.returncode == 0, result.stderr[-3000:]
+    if launcher == "population":  # the sweeper hands the launcher its trials n_jobs (2) at a time
+        assert result.stdout.count("population launcher: 2 jobs in") == TRIALS // 2, result.stdout
     objectives = {}
     for trial in range(TRIALS):
         run_dir = tmp_path / "sweep" / str(trial)

@@ -41,6 +41,12 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
         assert strip.size == (5 * 320, 320)  # 5 frames of 320 pixels
     with Image.open(figures / "empty1.png") as curves:
         assert min(curves.size) > 200
+    # Each phase's wall time, in the order the phases ran.
+    phases = [line.split("\t") for line in (tmp_path / "out" / "wall_time.tsv").read_text().splitlines()]
+    assert [name.split(" (")[0] for name, _ in phases] == [
+        "empty1: learners", "empty1: ARVI", "empty1: ARVI, min range 2 m", "empty1: Fig. 2 curves and results table",
+        "empty1: Fig. 3-style trajectory of the first ADFQ-TS seed"]
+    assert all(int(seconds) >= 0 for _, seconds in phases)
 
 
 def test_an_unknown_setting_is_named(tmp_path):
