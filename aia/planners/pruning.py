@@ -1,5 +1,6 @@
 """Reduced value iteration's pruning: greedy suppression of the candidates of a level that lie within
-``delta`` of a better kept one, solved in parallel rounds over the close pairs."""
+``delta`` of a better kept one; in one compiled pass on the CPU, in parallel rounds over the close pairs
+elsewhere."""
 
 from __future__ import annotations
 
@@ -42,10 +43,28 @@ def prune(cost: Tensor, xy: Tensor, cov_diag: Tensor | None, group: Tensor, delt
     within ``delta`` (distance ``sqrt(dx^2 + dy^2 + distance_offset)``) and, when ``eps`` is finite, the
     candidate is ``eps``-redundant with respect to it: ``diag(S_n - S_m) + eps >= 0`` with ``cov_diag [M, D]``
     the covariance diagonals. The lowest-cost candidate of every group is always kept. ``bounds`` (low and
-    high corner) contain every position (default: taken from ``xy``). Solved in parallel rounds over the
-    pairs within ``delta``: a candidate is decided once all that could suppress it are. ``labels [M]``
-    (``0 .. num_labels - 1``, one per group at most; default: all 0) split the critical distance by label.
+    high corner) contain every position (default: taken from ``xy``). ``labels [M]`` (``0 .. num_labels - 1``,
+    one per group at most; default: all 0) split the critical distance by label. On the CPU (float64) one
+    compiled pass does it (:mod:`aia.planners.suppression_cpu`), elsewhere :func:`prune_tensors`: the same
+    result.
     """
+    if cost.device.type == "cpu" and cost.dtype == xy.dtype == torch.float64:
+        from aia.planners.suppression_cpu import suppress  # here: numba's import costs every command 0.3 s
+
+        keep, criticals = suppress(cost.numpy(), xy.contiguous().numpy(),
+                                   None if cov_diag is None else cov_diag.contiguous().numpy(), group.numpy(),
+                                   delta * delta - distance_offset, eps, distance_offset,
+                                   None if labels is None else labels.numpy(), num_labels)
+        return Pruned(torch.from_numpy(keep), criticals)
+    return prune_tensors(cost, xy, cov_diag, group, delta, eps, distance_offset, bounds, labels, num_labels)
+
+
+def prune_tensors(cost: Tensor, xy: Tensor, cov_diag: Tensor | None, group: Tensor, delta: float,
+                  eps: float = math.inf, distance_offset: float = 1.0,
+                  bounds: tuple[tuple[float, float], tuple[float, float]] | None = None, labels: Tensor | None = None,
+                  num_labels: int = 1) -> Pruned:
+    """:func:`prune` in tensor ops on any device (what a GPU runs): the close pairs, then parallel rounds in
+    which a candidate is decided once all that could suppress it are."""
     later, earlier, sq_distance = _close_pairs(xy, group, cost, delta * delta - distance_offset, bounds)
     sq_distance = sq_distance + distance_offset
     if math.isfinite(eps) and later.numel():

@@ -36,7 +36,7 @@ class Level:
         if self.size + count > self._buffers["cost"].shape[0]:
             capacity = max(2 * self._buffers["cost"].shape[0], self.size + count)
             for name, buffer in self._buffers.items():
-                grown = buffer.new_zeros((capacity, *buffer.shape[1:]))
+                grown = buffer.new_empty((capacity, *buffer.shape[1:]))  # rows past size: written before read
                 grown[: self.size] = buffer[: self.size]
                 self._buffers[name] = grown
         for name in FIELDS[:-1]:

@@ -181,14 +181,32 @@ def _sequential_suppression(cost, xy, group, delta):
     return sorted(kept)
 
 
-@pytest.mark.parametrize("count", [200, 800])  # the dense and the grid neighbour search
-def test_parallel_rounds_equal_sequential_suppression(count):
+@pytest.mark.parametrize("implementation", [pruning.prune, pruning.prune_tensors])  # the CPU kernel, tensor ops
+@pytest.mark.parametrize("count", [200, 800])  # the tensor ops' dense and grid neighbour search
+def test_pruning_equals_sequential_suppression(count, implementation):
     generator = torch.Generator().manual_seed(count)
     xy = 10 * torch.rand(count, 2, generator=generator, dtype=torch.float64)
     cost = torch.rand(count, generator=generator, dtype=torch.float64)
     group = torch.randint(0, 3, (count,), generator=generator)
-    result = pruning.prune(cost, xy, None, group, delta=1.6)
+    result = implementation(cost, xy, None, group, delta=1.6)
     assert result.keep.nonzero().squeeze(-1).tolist() == _sequential_suppression(cost, xy, group, 1.6)
+
+
+@pytest.mark.parametrize("delta", [0.9, 1.3, 2.5, math.inf])  # nothing prunable, close pairs, one cell per world
+@pytest.mark.parametrize("eps", [math.inf, 0.0, 0.05])
+def test_the_cpu_kernel_equals_the_tensor_ops(delta, eps):
+    generator = torch.Generator().manual_seed(7)
+    count, worlds = 3000, 4
+    xy = 20 * torch.rand(count, 2, generator=generator, dtype=torch.float64)
+    cost = torch.randint(0, 400, (count,), generator=generator).double()  # many ties: broken by index
+    diag = torch.rand(count, 8, generator=generator, dtype=torch.float64)
+    group = torch.randint(0, worlds, (count,), generator=generator)
+    labels = group % 2  # two budget groups of two worlds
+    args = (cost, xy, diag, group, delta, eps, 1.0, ((0.0, 0.0), (20.0, 20.0)), labels, 2)
+    kernel, tensors = pruning.prune(*args), pruning.prune_tensors(*args)
+    assert torch.equal(kernel.keep, tensors.keep)
+    assert kernel.criticals == tensors.criticals  # the same arithmetic: equal, not close
+    assert 0 < int(kernel.keep.sum()) < count or delta < 1
 
 
 # ---------------------------------------------------------------------------------------- collisions
