@@ -9,7 +9,7 @@ import torch
 from hydra import compose, initialize_config_module
 
 from aia.logging import read_run
-from aia.training import make_actor, train
+from aia.training import make_actor, train, train_population
 
 
 def _config(*overrides: str):
@@ -134,7 +134,9 @@ def test_bad_configs_name_the_field(tmp_path):
 
 
 def test_adfq_thompson_learns_to_beat_random_and_its_initial_policy(tmp_path):
-    """Seeded learning check on a short-horizon single-target setting (about a minute of CPU)."""
+    """Seeded learning check on a short-horizon single-target setting, three seeds trained as one population
+    (about a minute of CPU): one seed's outcome hangs on rounding (seed 1 scored 775 on the machine of
+    2026-11 and 635 on that of 2026-12-02, seeds 0, 2, 3 988, 890, 917), the mean of three much less."""
     from tensordict.nn import TensorDictSequential
 
     from aia.envs import make_env
@@ -143,12 +145,12 @@ def test_adfq_thompson_learns_to_beat_random_and_its_initial_policy(tmp_path):
     from aia.modules import EpsilonGreedy
     from aia.policies import RandomPolicy
 
-    cfg = _config("algo=adfq", "exploration=thompson", "frames=2000", "env.max_steps=50", "logger=none",
-                  "eval.every_episodes=10", "seed=1")
-    _assert_finished(train(cfg, tmp_path), cfg, tmp_path, evaluations=4)
-    env = make_env(to_tracking_config(cfg.env), batch_size=64, seed=123)
-    trained, initial = make_actor(cfg, env), make_actor(cfg, env)
-    trained.load_state_dict(torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)["actor"])
+    seeds = (0, 1, 2)
+    cfgs = [_config("algo=adfq", "exploration=thompson", "frames=2000", "env.max_steps=50", "logger=none",
+                    "eval.every_episodes=10", f"seed={seed}") for seed in seeds]
+    for seed, cfg, state in zip(seeds, cfgs, train_population(cfgs, [tmp_path / str(s) for s in seeds]), strict=True):
+        _assert_finished(state, cfg, tmp_path / str(seed), evaluations=4)
+    env = make_env(to_tracking_config(cfgs[0].env), batch_size=64, seed=123)
 
     def score(policy):
         return episode_scores(run_episodes(env, policy, seed=123)).mean().item()
@@ -156,10 +158,16 @@ def test_adfq_thompson_learns_to_beat_random_and_its_initial_policy(tmp_path):
     def semi_greedy(actor):
         return TensorDictSequential(actor, EpsilonGreedy(12, 0.05, 0.05, 1, seed=0))
 
-    learned, untrained, random = score(semi_greedy(trained)), score(semi_greedy(initial)), score(RandomPolicy(12))
-    # measured: learned 775, untrained (all actions tied: always primitive 0) 611, random 5
-    assert learned > random + 300, (learned, random)
-    assert learned > untrained + 50, (learned, untrained)
+    learned = []
+    for seed in seeds:
+        trained = make_actor(cfgs[0], env)
+        trained.load_state_dict(torch.load(tmp_path / str(seed) / "checkpoints" / "last.pt", weights_only=False)["actor"])
+        learned.append(score(semi_greedy(trained)))
+    untrained, random = score(semi_greedy(make_actor(cfgs[0], env))), score(RandomPolicy(12))
+    # measured 2026-12-02: learned 988, 635, 890 (mean 838), untrained (all actions tied: always primitive 0) 611,
+    # random 5
+    assert min(learned) > random + 300, (learned, random)
+    assert sum(learned) / len(learned) > untrained + 150, (learned, untrained)
 
 
 @pytest.mark.parametrize("experiment, targets, hidden, lr, every", [
