@@ -48,7 +48,8 @@ def prune(cost: Tensor, xy: Tensor, cov_diag: Tensor | None, group: Tensor, delt
     compiled pass does it (:mod:`aia.planners.suppression_cpu`), elsewhere :func:`prune_tensors`: the same
     result.
     """
-    if cost.device.type == "cpu" and cost.dtype == xy.dtype == torch.float64:
+    if cost.device.type == "cpu" and cost.dtype == xy.dtype == torch.float64 and (
+            cov_diag is None or cov_diag.dtype == torch.float64):  # the kernel's arithmetic is float64's
         from aia.planners.suppression_cpu import suppress  # here: numba's import costs every command 0.3 s
 
         keep, criticals = suppress(cost.numpy(), xy.contiguous().numpy(),
