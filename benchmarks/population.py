@@ -4,9 +4,15 @@
    frame, batch 64, evaluation after every episode or two as the presets say) for P = 1, 5, 20, 80 members,
    for DQN on the 1-target network (``paper_empty1``: 3 x 128) and ADFQ with Thompson sampling on the
    3-target network (``paper_small3``: 3 x 256), eager and compiled (every ``compile.*`` switch on). The rate
-   counts the updating frames of every member: a job of ``warmup + frames`` frames minus a warm-up-only job
-   and minus the job's first (compiling) update, as ``train_throughput.measure_loop`` (compiled, after a
-   first warm-up job that compiles what the later jobs of that size reuse). Each row also gives the
+   counts the updating frames of every member, from the loop's own phase clocks (``TrainingState.seconds``):
+   per step, each phase's time in a job of ``warmup + frames`` frames minus its time in a warm-up-only job
+   (compiled, after a first warm-up job that compiles what the later jobs of that size reuse), summed over
+   the training phases (collect, buffer, update, other; the first, compiling, update left out).
+   ``member_frames_per_s_with_evaluation`` adds the longer job's evaluation time spread over all its frames
+   (evaluations come in lumps: a short job plays a whole evaluation rollout for a point or two, a long run
+   ``eval.per_rollout`` points per rollout, so this share depends on the job's length), and
+   ``member_frames_per_s_wall_clock`` is the jobs' wall-clock difference, which also carries the set-up that
+   differs between two jobs (twice on 2026-12-02 it came out 1.7x off the phase sum). Each row also gives the
    arithmetic it does (the updates' and the acting's matmul FLOPs per member-frame) as a share of this
    machine's measured matmul rate (``sgemm_gflops``, all threads), the ceiling a batched program can reach.
 2. The vmap alternative: one update of P members of the 3 x 128 DQN by ``torch.vmap`` over TorchRL's
@@ -99,13 +105,18 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
     warmup_s, warmup_phases = job(warmup)
     warmup_s -= warmup_phases.get("first_update", 0.0)
     job_s, phases = job(warmup + frames)
-    updating_s = job_s - warmup_s - phases["first_update"]
     split = {phase: 1e3 * (t - warmup_phases.get(phase, 0.0)) / frames
-             for phase, t in phases.items() if phase != "first_update"}
+             for phase, t in phases.items() if phase not in ("first_update", "evaluate")}
+    training_ms = sum(ms for phase, ms in split.items() if phase != "checkpoint")
+    # evaluations come in lumps (a rollout per eval.per_rollout points, and one at the end of every job), so
+    # a difference of two jobs says little: their cost is spread over all frames of the longer job
+    split["evaluate"] = 1e3 * phases.get("evaluate", 0.0) / (warmup + frames)
     return {"kind": "population", "algo": algo, "network": "x".join(map(str, ROWS[algo][3])), "members": members,
             "compiled": compile, "device": device, "warmup_frames": warmup, "updating_frames": frames,
             "job_s": job_s, "first_update_s": phases["first_update"],
-            "member_frames_per_s": members * frames / updating_s,
+            "member_frames_per_s": 1e3 * members / training_ms,
+            "member_frames_per_s_with_evaluation": 1e3 * members / (training_ms + split.get("evaluate", 0.0)),
+            "member_frames_per_s_wall_clock": members * frames / (job_s - warmup_s - phases["first_update"]),
             "ms_per_step_by_phase": split}
 
 
@@ -185,7 +196,7 @@ def main() -> None:
 
     gflops_before = sgemm_gflops()
     rows = []
-    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'P':>4}{'member-frames/s':>17}{'x P=1':>7}"
+    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'P':>4}{'member-frames/s':>17}{'x P=1':>7}{'with eval':>11}"
           f"{'% of matmul peak':>18}  ms per step by phase")
     for algo in ROWS:
         for mode in modes:
@@ -201,7 +212,8 @@ def main() -> None:
                 phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
                                    sorted(row["ms_per_step_by_phase"].items(), key=lambda item: -item[1]))
                 print(f"{algo:<6}{row['network']:<13}{mode:<10}{members:>4}{row['member_frames_per_s']:>17,.0f}"
-                      f"{speedup:>7}{100 * row['share_of_sgemm_peak']:>17.1f}%  {phases}", flush=True)
+                      f"{speedup:>7}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
+                      f"{100 * row['share_of_sgemm_peak']:>17.1f}%  {phases}", flush=True)
     print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
           f"{'stacked network ms':>20}")
     for members in (1, 20):
