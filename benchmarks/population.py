@@ -115,7 +115,7 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
             "compiled": compile, "device": device, "warmup_frames": warmup, "updating_frames": frames,
             "job_s": job_s, "first_update_s": phases["first_update"],
             "member_frames_per_s": 1e3 * members / training_ms,
-            "member_frames_per_s_with_evaluation": 1e3 * members / (training_ms + split.get("evaluate", 0.0)),
+            "member_frames_per_s_with_evaluation": 1e3 * members / (training_ms + split["evaluate"]),
             "member_frames_per_s_wall_clock": members * frames / (job_s - warmup_s - phases["first_update"]),
             "ms_per_step_by_phase": split}
 
