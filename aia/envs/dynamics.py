@@ -32,19 +32,26 @@ def se2_step(pose: Tensor, velocity: Tensor, dt: float) -> Tensor:
     ``x' = x + v dt sinc(w dt / 2) cos(theta + w dt / 2)``, likewise ``y'`` with sin, and
     ``theta' = wrap(theta + w dt)``. ``pose`` is ``[..., 3]``, ``velocity`` is ``[..., 2]``.
     """
-    v, w = velocity.unbind(-1)
-    half_turn = 0.5 * dt * w
-    # torch.sinc is the normalised sinc sin(pi u) / (pi u); rescale to sin(u) / u.
-    chord = v * dt * torch.sinc(half_turn / math.pi)
+    half_turn, chord, turn = unicycle_arc(velocity, dt)
     heading = pose[..., 2] + half_turn
     return torch.stack(
         (
             pose[..., 0] + chord * torch.cos(heading),
             pose[..., 1] + chord * torch.sin(heading),
-            wrap_angle(pose[..., 2] + dt * w),
+            wrap_angle(pose[..., 2] + turn),
         ),
         dim=-1,
     )
+
+
+def unicycle_arc(velocity: Tensor, dt: float) -> tuple[Tensor, Tensor, Tensor]:
+    """What :func:`se2_step` takes of ``velocity [..., 2]`` alone: the half turn ``w dt / 2``, the chord
+    ``v dt sinc(w dt / 2)`` and the turn ``w dt`` (each ``[...]``)."""
+    v, w = velocity.unbind(-1)
+    half_turn = 0.5 * dt * w
+    # torch.sinc is the normalised sinc sin(pi u) / (pi u); rescale to sin(u) / u.
+    chord = v * dt * torch.sinc(half_turn / math.pi)
+    return half_turn, chord, dt * w
 
 
 def double_integrator(dt: float, q: float, dtype: torch.dtype = torch.float64) -> tuple[Tensor, Tensor]:

@@ -54,7 +54,6 @@ class ARVIPlanner:
         group: ``max_nodes`` counts the nodes of all ``W`` worlds against ``W * max_nodes``)."""
         return self.plan_groups(pose, mean, cov, torch.zeros(pose.shape[0], dtype=torch.long, device=pose.device))[0]
 
-    @torch.no_grad()
     def plan_groups(self, pose: Tensor, mean: Tensor, cov: Tensor, groups: Tensor) -> list[PlanResult]:
         """Plans of several budget groups in one batch: ``groups [W]`` labels each world ``0 .. G - 1``
         (every label used). Result ``g`` holds group ``g``'s worlds in ascending order and equals
@@ -65,7 +64,12 @@ class ARVIPlanner:
             raise ValueError(f"groups must label the {pose.shape[0]} worlds 0 .. G - 1, every label used, got "
                              f"{groups.tolist()}")
         f64 = torch.float64
-        return _Search(self, pose.to(f64), mean.to(f64), cov.to(f64), groups).run()
+        # inference mode: a call is thousands of small ops, each a little cheaper without autograd's
+        # bookkeeping (at one world 15-25 % of a call, 2026-12-02); the results leave it as plain tensors
+        with torch.inference_mode():
+            plans = _Search(self, pose.to(f64), mean.to(f64), cov.to(f64), groups).run()
+        return [plan._replace(actions=plan.actions.clone(), cost=plan.cost.clone(), nodes=plan.nodes.clone())
+                for plan in plans]
 
 
 class _Search:

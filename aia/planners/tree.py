@@ -3,13 +3,18 @@ collision-free children of the motion primitives (:class:`Expansion`)."""
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
-from aia.envs.dynamics import se2_step
+from aia.envs.dynamics import se2_step, unicycle_arc
 from aia.planners.model import TrackingModel, predict_cov, update_visible, visible_targets
 
 FIELDS = ("pose", "cov", "logdet", "cost", "world", "parent", "action", "expanded")
+# Rows a level's buffers hold at least once they hold any: fewer regrowths of a small tree (each copies every
+# field), at about 0.4 MB per level for three targets.
+_MIN_CAPACITY = 1024
 
 
 class Level:
@@ -34,7 +39,7 @@ class Level:
         """Append ``nodes`` (a tensor per field but ``expanded``, which starts False)."""
         count = nodes["cost"].shape[0]
         if self.size + count > self._buffers["cost"].shape[0]:
-            capacity = max(2 * self._buffers["cost"].shape[0], self.size + count)
+            capacity = max(2 * self._buffers["cost"].shape[0], self.size + count, _MIN_CAPACITY)
             for name, buffer in self._buffers.items():
                 grown = buffer.new_empty((capacity, *buffer.shape[1:]))  # rows past size: written before read
                 grown[: self.size] = buffer[: self.size]
@@ -59,10 +64,49 @@ class Expansion:
         fractions = torch.arange(1, arc_checks + 1, dtype=torch.float64, device=model.primitives.device) / arc_checks
         # [A, K, 2]: the primitive's (v, w) scaled so that one step of dt ends at each checked point.
         self.arc_velocity = model.primitives.unsqueeze(1) * fractions.unsqueeze(-1)
+        self._kernel_constants: dict | None = None  # what the CPU kernel reads of the model (made on first use)
 
     def children(self, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
         """The collision-free children of ``parents`` (indices into ``level``), the targets predicted at
-        ``positions [W, N, 2]``: a tensor per field of :class:`Level` but ``expanded``."""
+        ``positions [W, N, 2]``: a tensor per field of :class:`Level` but ``expanded``, parent by parent and
+        action by action. On the CPU (float64) one compiled kernel makes them
+        (:mod:`aia.planners.expansion_cpu`), elsewhere :meth:`children_tensors`: the same children."""
+        if parents.device.type == "cpu" and level.cov.dtype == torch.float64:
+            return self._children_kernel(level, parents, positions)
+        return self.children_tensors(level, parents, positions)
+
+    def _children_kernel(self, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
+        from aia.planners.expansion_cpu import expand  # here: numba's import costs every command 0.3 s
+
+        if self._kernel_constants is None:
+            self._kernel_constants = self._make_kernel_constants()
+        half_turn, constants = self._half_turn, self._kernel_constants
+        # the arcs' cosines and sines as se2_step computes them (the same tensor ops: the same bits)
+        heading = level.pose.index_select(0, parents)[:, None, None, 2] + half_turn
+        children = expand(parents.numpy(), level.pose.numpy(), level.cov.numpy(), level.logdet.numpy(),
+                          level.cost.numpy(), level.world.numpy(), positions.contiguous().numpy(),
+                          torch.cos(heading).numpy(), torch.sin(heading).numpy(), **constants)
+        return {name: torch.from_numpy(value) for name, value in children.items()}
+
+    def _make_kernel_constants(self) -> dict:
+        """What the CPU kernel reads of the model, as numpy arrays and floats."""
+        model, geometry = self.model, self.model.geometry
+        self._half_turn, chord, turn = unicycle_arc(self.arc_velocity, model.dt)
+        samples = math.ceil(2 * geometry.sensor_range / geometry.resolution) + 1
+        return {
+            "chord": chord.numpy(), "turn": turn.numpy(),
+            "collision": geometry.collision.numpy(), "fine_cell": geometry.fine_cell,
+            "size": tuple(geometry.size.double().tolist()),
+            "occupancy": geometry.occupancy.numpy() if geometry.has_obstacles else None,
+            "resolution": geometry.resolution,
+            # line_of_sight's sample fractions, in the geometry's dtype as there
+            "sight_fraction": torch.linspace(0.0, 1.0, samples, dtype=geometry.dtype).double().numpy(),
+            "sensor_range": geometry.sensor_range, "half_fov": geometry.fov / 2, "min_range": self.min_range,
+            "transition": model.transition.numpy(), "process_noise": model.process_noise.numpy(),
+            "meas_noise": model.meas_noise.numpy(), "log_det_cap": model.log_det_cap}
+
+    def children_tensors(self, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
+        """:meth:`children` in tensor ops on any device (what a GPU runs)."""
         model = self.model
         num_actions = model.primitives.shape[0]
         pose = level.pose.index_select(0, parents)

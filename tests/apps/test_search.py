@@ -31,8 +31,9 @@ def test_paper_search_composes_a_maximising_optuna_sweeper():
 def test_a_four_trial_study_returns_the_lr_of_its_best_run(tmp_path, launcher):
     storage = f"sqlite:///{tmp_path / 'study.db'}"  # the sqlite storage needs the pins of the `search` extra
     result = subprocess.run(
-        [sys.executable, "-m", "aia.apps.train", "-m", "hydra/sweeper=paper_search", f"hydra.sweeper.n_trials={TRIALS}",
-         f"hydra.sweeper.storage={storage}", "hydra.sweeper.study_name=tiny", f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+        [sys.executable, "-m", "aia.apps.train", "-m", "hydra/sweeper=paper_search",
+         f"hydra.sweeper.n_trials={TRIALS}", f"hydra.sweeper.storage={storage}", "hydra.sweeper.study_name=tiny",
+         f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path / 'sweep'}",
          "frames=100", "warmup_frames=50", "env.max_steps=50", "eval.episodes=2", "eval.per_rollout=1",
          "logger.record_every_evaluations=0", "threads=1"],
         capture_output=True, text=True, timeout=300,

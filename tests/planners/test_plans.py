@@ -1,4 +1,5 @@
-"""ARVI returns the plans recorded from the planner before issue 16's rewrite (``data/arvi_plans.pt``)."""
+"""ARVI returns the plans recorded from the planner before issue 16's rewrite (``data/arvi_plans.pt``), with the
+CPU's compiled kernels and with the tensor ops that run elsewhere."""
 
 from __future__ import annotations
 
@@ -8,14 +9,20 @@ import pytest
 import torch
 
 from aia.envs import make_env
-from aia.planners import ARVIConfig, ARVIPlanner
+from aia.planners import ARVIConfig, ARVIPlanner, search
+from aia.planners.pruning import prune_tensors
+from aia.planners.tree import Expansion
 
 RECORDED = torch.load(Path(__file__).parent / "data" / "arvi_plans.pt", weights_only=True)
 
 
+@pytest.mark.parametrize("implementation", ["cpu kernels", "tensor ops"])  # tensor ops: what a GPU runs
 @pytest.mark.parametrize("case", sorted(RECORDED["cases"]))
 @pytest.mark.parametrize("setting", sorted(RECORDED["settings"]))
-def test_plans_equal_the_recorded_ones(setting, case):
+def test_plans_equal_the_recorded_ones(setting, case, implementation, monkeypatch):
+    if implementation == "tensor ops":
+        monkeypatch.setattr(Expansion, "children", Expansion.children_tensors)
+        monkeypatch.setattr(search, "prune", prune_tensors)
     recorded = RECORDED["settings"][setting]
     state, expected = recorded["state"], recorded["plans"][case]
     planner = ARVIPlanner(make_env(setting, transforms=False), ARVIConfig(**RECORDED["cases"][case]))

@@ -1,0 +1,65 @@
+"""The CPU expansion kernel makes the children the tensor ops make: the same children, poses bit for bit."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from aia.envs import make_env
+from aia.planners import ARVIConfig, ARVIPlanner
+from aia.planners.tree import Expansion
+from aia.policies import RandomPolicy
+
+
+def _states(setting: str, worlds: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A seeded reset and a few random steps; the first world's first target made so uncertain that
+    the prediction meets the det cap in the tree."""
+    env = make_env(setting, batch_size=worlds, seed=seed, transforms=False)
+    random = RandomPolicy(env.action_spec.n, seed=seed)
+    td = env.reset()
+    for _ in range(4):
+        td = env.step(random(td))["next"]
+    cov = td["belief_cov"].double().clone()
+    cov[0, 0] = 32.0 * torch.eye(4, dtype=torch.float64)  # det 1.05e6, over the cap 1e6
+    return td["robot_pose"], td["belief_mean"], cov
+
+
+@pytest.mark.parametrize(("setting", "overrides"), [
+    ("empty1", {"min_range": 2.0}),  # the minimum range hides close targets
+    ("obstacles1", {}),  # collisions with obstacles and lines of sight
+    ("small3", {"eps": 0.5}),  # three targets
+])
+def test_the_kernel_makes_the_children_of_the_tensor_ops(setting, overrides, monkeypatch):
+    kernel = Expansion.children
+    seen = {"calls": 0, "children": 0, "dropped": 0, "updated": 0, "capped": 0}
+
+    def both(self, level, parents, positions):
+        made, expected = kernel(self, level, parents, positions), self.children_tensors(level, parents, positions)
+        for name in ("pose", "world", "parent", "action"):
+            assert torch.equal(made[name], expected[name]), name
+        for name in ("cov", "logdet", "cost"):
+            torch.testing.assert_close(made[name], expected[name], rtol=1e-12, atol=1e-12)
+        prior = level.cov.index_select(0, made["parent"])
+        seen["calls"] += 1
+        seen["children"] += made["cost"].numel()
+        seen["dropped"] += parents.numel() * self.model.primitives.shape[0] - made["cost"].numel()
+        seen["updated"] += int((made["logdet"] < level.logdet.index_select(0, made["parent"]) - 1e-9).sum())
+        seen["capped"] += int((made["cov"] == prior).flatten(2).all(-1).sum())
+        return made
+
+    monkeypatch.setattr(Expansion, "children", both)
+    planner = ARVIPlanner(make_env(setting, transforms=False),
+                          ARVIConfig(time_budget=None, max_nodes=1500, **overrides))
+    planner.plan(*_states(setting, worlds=3, seed=5))
+    assert seen["calls"] > 10 and seen["children"] > 3 * 1500 * 0.9
+    # every branch of the kernel was taken: collisions, Kalman updates, the det cap
+    assert seen["updated"] > 0 and seen["capped"] > 0
+    assert seen["dropped"] > 0 or setting != "obstacles1"
+
+
+def test_planning_leaves_plain_tensors():
+    """The search runs in inference mode; its results can be written to in place like any tensor."""
+    planner = ARVIPlanner(make_env("empty1", transforms=False), ARVIConfig(time_budget=None, max_nodes=300))
+    result = planner.plan(*_states("empty1", worlds=2, seed=0))
+    assert not any(t.is_inference() for t in (result.actions, result.cost, result.nodes))
+    result.actions.add_(1)  # an inference tensor would refuse this outside inference mode
