@@ -23,6 +23,9 @@ from aia.planners.model import TrackingModel
 from aia.planners.pruning import prune
 from aia.planners.tree import Expansion, Level
 
+# Parents expanded between two readings of the clock under a time budget: about 12,000 children, some 10 ms.
+_TIMED_CHUNK = 1024
+
 
 class PlanResult(NamedTuple):
     """Plans of a batch of worlds (one budget group)."""
@@ -166,12 +169,18 @@ class _Search:
                 changed = {g: c for g, c in changed.items() if not self._out_of_nodes(g)}
             due = [g for g, c in changed.items() if c or delta < self.critical[t][g] or math.isinf(delta)]
             if due:
-                changed.update(self._prune_level(t, delta, eps, due))
+                level_changed = self._prune_level(t, delta, eps, due, check_budget)
+                if level_changed is None:
+                    return None
+                changed.update(level_changed)
         return list(changed)
 
-    def _prune_level(self, t: int, delta: float, eps: float, groups: list[int]) -> dict[int, bool]:
+    def _prune_level(self, t: int, delta: float, eps: float, groups: list[int], check_budget: bool = False
+                     ) -> dict[int, bool] | None:
         """Expand the newly opened nodes of level ``t - 1`` and prune level ``t``, for the worlds of
-        ``groups`` only (the others' nodes keep their state); per group, whether its open set changed."""
+        ``groups`` only (the others' nodes keep their state); per group, whether its open set changed. With
+        ``check_budget`` and a time budget, None once the clock runs out within the level (the tree keeps the
+        children made so far, unpruned)."""
         above, level = self.levels[t - 1], self.levels[t]
         active = None  # [W] whether a world takes part (None: all do)
         if len(groups) < self.num_groups:
@@ -180,11 +189,20 @@ class _Search:
             active = active[self.group]
         open_above = self.open[t - 1] if active is None else self.open[t - 1] & active[above.world]
         fresh = (open_above & ~above.expanded).nonzero().squeeze(-1)
-        if fresh.numel():
-            children = self.planner.expansion.children(above, fresh, self.positions[t])
-            above.expanded[fresh] = True
+        timed = check_budget and self.cfg.time_budget is not None
+        # under a time budget in chunks, the clock read between them: a level of a deep pass can hold a million
+        # children, a second's work or more
+        chunk = _TIMED_CHUNK if timed else max(1, fresh.numel())
+        for start in range(0, fresh.numel(), chunk):
+            if start and self._out_of_time():
+                return None
+            parents = fresh[start : start + chunk]
+            children = self.planner.expansion.children(above, parents, self.positions[t])
+            above.expanded[parents] = True
             level.append(children)
             self._count(children["world"])
+        if timed and self._out_of_time():
+            return None
         candidates = open_above.index_select(0, level.parent).nonzero().squeeze(-1)
         diag = level.cov[candidates].diagonal(dim1=-2, dim2=-1).flatten(1) if math.isfinite(eps) else None
         world = level.world[candidates]

@@ -96,6 +96,46 @@ def test_skipped_passes_change_nothing():
     assert plain.cost.item() == fast.cost.item() and plain.delta == fast.delta
 
 
+def test_a_time_budget_reads_the_clock_within_a_big_level(monkeypatch):
+    """Under a time budget a level's expansion comes in chunks with the clock read between them, so a deep
+    pass's level of a million children cannot overrun the budget; when the clock runs out mid-level the
+    plan is read from the tree as it stands."""
+    env = make_env("empty1", transforms=False)
+    pose, mean, cov = _scene()
+    expanded = []
+    children = search.Expansion.children
+
+    def counting(self, level, parents, positions):
+        expanded.append(parents.numel())
+        return children(self, level, parents, positions)
+
+    monkeypatch.setattr(search.Expansion, "children", counting)
+    monkeypatch.setattr(search, "_TIMED_CHUNK", 64)
+    untimed = ARVIPlanner(env, _config(max_passes=36)).plan(pose, mean, cov)
+    assert max(expanded) > 64  # a pass budget expands a level's fresh nodes at once
+    expanded.clear()
+    clock_reads = []
+
+    def out_of_time(self):  # the clock runs out at its 40th reading
+        clock_reads.append(len(expanded))
+        return len(clock_reads) > 40
+
+    monkeypatch.setattr(search._Search, "_out_of_time", out_of_time)
+    timed = ARVIPlanner(env, ARVIConfig(time_budget=1.0, max_passes=36)).plan(pose, mean, cov)
+    assert max(expanded) <= 64 and len(clock_reads) == 41
+    assert timed.nodes.item() < untimed.nodes.item() and timed.actions.shape == (1, 12)
+    assert not env.geometry.in_collision(_rollout_positions(env, pose, timed.actions[0])).any()
+
+
+def _rollout_positions(env, pose, actions):
+    """The robot's positions along a plan (one step per action)."""
+    positions, current = [], pose.double()
+    for action in actions.tolist():
+        current = se2_step(current, env.primitives.double()[action], env.config.dt)
+        positions.append(current[..., :2])
+    return torch.cat(positions)
+
+
 # ------------------------------------------------------------------------------------ filter model
 def test_covariance_steps_equal_the_env_filter():
     """Same poses, same visibility: the planner's covariance step is the env's EKF covariance (det cap on)."""
