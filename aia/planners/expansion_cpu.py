@@ -10,7 +10,7 @@ Arithmetic: the arcs' cosines and sines come from torch (the caller passes them)
 collision checks and the children kept are bit for bit those of the tensor ops; the products and sums of the
 filter are the tensor ops' own (sequential, as ATen's small batched products do: bit for bit). Square roots,
 arc tangents, logarithms and the Cholesky factor of the log det are libm's and a plain Cholesky loop, which
-differ from torch's vectorised ones and MKL's by an ulp or so: costs agree to about 1e-15 relative, and the
+differ from torch's vectorised ones and MKL's by an ulp or so: costs agree to about 1e-12 relative, and the
 plans are the tensor ops' (``tests/planners/test_expansion_cpu.py``, ``tests/planners/test_plans.py``).
 """
 

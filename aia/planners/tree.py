@@ -64,7 +64,8 @@ class Expansion:
         fractions = torch.arange(1, arc_checks + 1, dtype=torch.float64, device=model.primitives.device) / arc_checks
         # [A, K, 2]: the primitive's (v, w) scaled so that one step of dt ends at each checked point.
         self.arc_velocity = model.primitives.unsqueeze(1) * fractions.unsqueeze(-1)
-        self._kernel_constants: dict | None = None  # what the CPU kernel reads of the model (made on first use)
+        # what the CPU kernel reads of the model (made on first use): the arcs' half turns, and the rest
+        self._kernel_constants: tuple[Tensor, dict] | None = None
 
     def children(self, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
         """The collision-free children of ``parents`` (indices into ``level``), the targets predicted at
@@ -80,7 +81,7 @@ class Expansion:
 
         if self._kernel_constants is None:
             self._kernel_constants = self._make_kernel_constants()
-        half_turn, constants = self._half_turn, self._kernel_constants
+        half_turn, constants = self._kernel_constants
         # the arcs' cosines and sines as se2_step computes them (the same tensor ops: the same bits)
         heading = level.pose.index_select(0, parents)[:, None, None, 2] + half_turn
         children = expand(parents.numpy(), level.pose.numpy(), level.cov.numpy(), level.logdet.numpy(),
@@ -88,12 +89,12 @@ class Expansion:
                           torch.cos(heading).numpy(), torch.sin(heading).numpy(), **constants)
         return {name: torch.from_numpy(value) for name, value in children.items()}
 
-    def _make_kernel_constants(self) -> dict:
-        """What the CPU kernel reads of the model, as numpy arrays and floats."""
+    def _make_kernel_constants(self) -> tuple[Tensor, dict]:
+        """The arcs' half turns ``[A, K]`` and what else the CPU kernel reads of the model (numpy arrays, floats)."""
         model, geometry = self.model, self.model.geometry
-        self._half_turn, chord, turn = unicycle_arc(self.arc_velocity, model.dt)
+        half_turn, chord, turn = unicycle_arc(self.arc_velocity, model.dt)
         samples = math.ceil(2 * geometry.sensor_range / geometry.resolution) + 1
-        return {
+        return half_turn, {
             "chord": chord.numpy(), "turn": turn.numpy(),
             "collision": geometry.collision.numpy(), "fine_cell": geometry.fine_cell,
             "size": tuple(geometry.size.double().tolist()),
