@@ -25,8 +25,8 @@ import numpy as np
 def expand(parents: np.ndarray, pose: np.ndarray, cov: np.ndarray, logdet: np.ndarray, cost: np.ndarray,
            world: np.ndarray, positions: np.ndarray, arc_cos: np.ndarray, arc_sin: np.ndarray, chord: np.ndarray,
            turn: np.ndarray, collision: np.ndarray, fine_cell: float, size: tuple[float, float],
-           occupancy: np.ndarray | None, resolution: float, sight_fraction: np.ndarray, sensor_range: float,
-           half_fov: float, min_range: float, transition: np.ndarray, process_noise: np.ndarray,
+           occupancy: np.ndarray, obstacles: bool, resolution: float, sight_fraction: np.ndarray,
+           sensor_range: float, half_fov: float, min_range: float, transition: np.ndarray, process_noise: np.ndarray,
            meas_noise: np.ndarray, log_det_cap: float) -> dict[str, np.ndarray]:
     """The collision-free children of ``parents`` (indices into the level's ``pose [n, 3]``, ``cov [n, N, 4,
     4]``, ``logdet [n, N]``, ``cost [n]``, ``world [n]``), parent by parent and action by action: a numpy
@@ -35,19 +35,17 @@ def expand(parents: np.ndarray, pose: np.ndarray, cov: np.ndarray, logdet: np.nd
     ``arc_cos`` and ``arc_sin`` ``[P, A, K]`` are the cosines and sines of each parent's heading plus each
     primitive's half turn at the ``K`` checked points, ``chord`` and ``turn`` ``[A, K]`` the primitives'
     chords and turns; ``positions [W, N, 2]`` the targets' predicted positions at the children's depth;
-    ``occupancy`` None on a map without obstacles.
+    ``occupancy`` is read for lines of sight only where ``obstacles``.
     """
     count = parents.shape[0] * chord.shape[0]
     targets = cov.shape[1]
     out = {"pose": np.empty((count, 3)), "cov": np.empty((count, targets, 4, 4)),
            "logdet": np.empty((count, targets)), "cost": np.empty(count), "world": np.empty(count, dtype=np.int64),
            "parent": np.empty(count, dtype=np.int64), "action": np.empty(count, dtype=np.int64)}
-    obstacles = occupancy is not None
     made = _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin, chord, turn, collision,
-                   fine_cell, size[0], size[1], occupancy if obstacles else np.zeros((1, 1), dtype=np.bool_),
-                   obstacles, resolution, sight_fraction, sensor_range, half_fov, min_range, transition,
-                   process_noise, meas_noise, log_det_cap, out["pose"], out["cov"], out["logdet"], out["cost"],
-                   out["world"], out["parent"], out["action"])
+                   fine_cell, size[0], size[1], occupancy, obstacles, resolution, sight_fraction, sensor_range,
+                   half_fov, min_range, transition, process_noise, meas_noise, log_det_cap, out["pose"], out["cov"],
+                   out["logdet"], out["cost"], out["world"], out["parent"], out["action"])
     return {name: value[:made] for name, value in out.items()}
 
 
@@ -133,12 +131,11 @@ def _update(cov: np.ndarray, jacobian: np.ndarray, meas_noise: np.ndarray, out: 
 
 
 @numba.njit(cache=True, nogil=True)
-def _seen(x: float, y: float, heading: float, tx: float, ty: float, occupancy: np.ndarray, obstacles: bool,
-          resolution: float, sight_fraction: np.ndarray, sensor_range: float, half_fov: float, min_range: float
-          ) -> bool:  # pragma: no cover - compiled
-    """``visible_targets``: in range (and at least ``min_range`` away), in the field of view, in sight."""
-    dx, dy = tx - x, ty - y
-    distance = math.sqrt(dx * dx + dy * dy)
+def _seen(x: float, y: float, heading: float, dx: float, dy: float, distance: float, occupancy: np.ndarray,
+          obstacles: bool, resolution: float, sight_fraction: np.ndarray, sensor_range: float, half_fov: float,
+          min_range: float) -> bool:  # pragma: no cover - compiled
+    """``visible_targets`` of the target at ``(dx, dy)`` and ``distance`` from ``(x, y)``: in range (and at least
+    ``min_range`` away), in the field of view, in sight."""
     bearing = _wrap(math.atan2(dy, dx) - heading)
     if not (distance <= sensor_range and abs(bearing) <= half_fov):
         return False
@@ -201,12 +198,11 @@ def _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin
             out_pose[made, 0], out_pose[made, 1], out_pose[made, 2] = x, y, theta
             total = 0.0
             for n in range(targets):
-                tx, ty = positions[w, n, 0], positions[w, n, 1]
-                if _seen(x, y, theta, tx, ty, occupancy, obstacles, resolution, sight_fraction, sensor_range,
+                dx, dy = positions[w, n, 0] - x, positions[w, n, 1] - y
+                r2 = dx * dx + dy * dy  # range_bearing's and measurement_jacobian's, computed once
+                r = math.sqrt(r2)
+                if _seen(x, y, theta, dx, dy, r, occupancy, obstacles, resolution, sight_fraction, sensor_range,
                          half_fov, min_range):
-                    dx, dy = tx - x, ty - y
-                    r2 = dx * dx + dy * dy
-                    r = math.sqrt(r2)
                     jacobian[0, 0], jacobian[0, 1] = dx / r, dy / r
                     jacobian[1, 0], jacobian[1, 1] = -dy / r2, dx / r2
                     _update(predicted[n], jacobian, meas_noise, out_cov[made, n], scratch)

@@ -98,7 +98,7 @@ class Expansion:
             "chord": chord.numpy(), "turn": turn.numpy(),
             "collision": geometry.collision.numpy(), "fine_cell": geometry.fine_cell,
             "size": tuple(geometry.size.double().tolist()),
-            "occupancy": geometry.occupancy.numpy() if geometry.has_obstacles else None,
+            "occupancy": geometry.occupancy.numpy(), "obstacles": geometry.has_obstacles,
             "resolution": geometry.resolution,
             # line_of_sight's sample fractions, in the geometry's dtype as there
             "sight_fraction": torch.linspace(0.0, 1.0, samples, dtype=geometry.dtype).double().numpy(),
