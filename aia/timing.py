@@ -1,4 +1,7 @@
-"""Where a loop's wall-clock time goes: seconds accumulated per named phase."""
+"""Where a loop's wall-clock time goes (seconds accumulated per named phase), and how fast the machine is now.
+
+``python -m aia.timing`` prints the machine's float32 matmul rate (:func:`sgemm_gflops`) in GFLOP/s.
+"""
 
 from __future__ import annotations
 
@@ -48,3 +51,22 @@ class _TimedPhase:
 
     def __exit__(self, *exc_info: object) -> None:
         self.timer.add(self.phase, time.perf_counter() - self.start)
+
+
+def sgemm_gflops(size: int = 1024, calls: int = 30) -> float:
+    """The machine's float32 matmul rate now, in GFLOP/s, on torch's current threads: ``calls`` products of two
+    ``size x size`` matrices after three warm-up products. The ceiling of a batched update, and a gauge of a
+    shared VM's speed at the hour a timing was taken (on the project's 2-core VM it swings by up to 3x)."""
+    import torch  # here: the phase timer itself needs no torch
+
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    for _ in range(3):
+        a @ b
+    start = time.perf_counter()
+    for _ in range(calls):
+        a @ b
+    return 2 * size**3 * calls / (time.perf_counter() - start) / 1e9
+
+
+if __name__ == "__main__":
+    print(f"{sgemm_gflops():.0f}")

@@ -48,6 +48,7 @@ from torchrl.objectives import DQNLoss
 from aia.envs import make_env
 from aia.modules import make_q_network
 from aia.modules.q_networks import make_qvalue_actor
+from aia.timing import sgemm_gflops
 from aia.training import train_population
 from aia.training.components import make_loss, make_stacked_network
 
@@ -61,17 +62,6 @@ HERE = Path(__file__).parent
 def _config(*overrides: str):
     with initialize_config_module(config_module="aia.conf", version_base="1.3"):
         return compose(config_name="train", overrides=list(overrides))
-
-
-def sgemm_gflops(size: int = 1024, calls: int = 30) -> float:
-    """This machine's float32 matmul rate (all of torch's threads), the ceiling of a batched update."""
-    a, b = torch.randn(size, size), torch.randn(size, size)
-    for _ in range(3):
-        a @ b
-    start = time.perf_counter()
-    for _ in range(calls):
-        a @ b
-    return 2 * size**3 * calls / (time.perf_counter() - start) / 1e9
 
 
 def flops_per_member_frame(algo: str) -> float:

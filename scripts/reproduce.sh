@@ -2,7 +2,9 @@
 # Reproduce the paper's comparison (SPEC 11): for each setting, DQN, Double DQN, ADFQ-egreedy and ADFQ-TS with
 # 5 seeds each, ARVI with 10 seeds, then the Fig. 2 curves, a results table and a Fig. 3-style trajectory
 # picture of a learned ADFQ-TS policy. Everything is logged to MCAP under $OUT; each phase prints its wall time
-# and appends it to $OUT/wall_time.tsv.
+# and appends it to $OUT/wall_time.tsv, and the machine's float32 matmul rate at the start and at the end goes to
+# $OUT/machine.tsv (GFLOP/s, python3 -m aia.timing): a shared VM's speed swings, and wall times compare only
+# with it.
 #
 #   scripts/reproduce.sh                                  # the whole protocol (hours on a laptop CPU)
 #   SETTINGS="empty1" SEEDS=0,1 FRAMES=2000 ARVI_SEEDS=0,1 scripts/reproduce.sh   # a quick smoke run
@@ -61,6 +63,14 @@ declare -A WHERE=(
   [small3]="--where env.map=empty_small --where env.num_targets=3"
 )
 mkdir -p "$OUT" "$FIGURES"
+# machine_speed WHEN: record the machine's matmul rate now in $OUT/machine.tsv (nan if it cannot be measured)
+machine_speed() {
+  local gflops
+  gflops=$(python3 -m aia.timing 2>/dev/null || echo nan)
+  echo "-- machine: sgemm $gflops GFLOP/s ($1)"
+  printf 'sgemm_gflops_%s\t%s\n' "$1" "$gflops" >> "$OUT/machine.tsv"
+}
+machine_speed start
 start=$(date +%s)
 phase_name=""
 phase_start=$start
@@ -110,4 +120,5 @@ for setting in $SETTINGS; do
     --out "$FIGURES/${setting}_trajectory.png"
 done
 phase ""
+machine_speed end
 echo "done in $(( $(date +%s) - start )) s (each phase's in $OUT/wall_time.tsv); figures and tables in $FIGURES"

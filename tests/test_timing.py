@@ -1,6 +1,10 @@
-"""aia.timing: phase totals with a fake clock, in place in the dict given, and the summary line."""
+"""aia.timing: phase totals with a fake clock, in place in the dict given, the summary line, and the machine's
+matmul rate."""
 
 from __future__ import annotations
+
+import subprocess
+import sys
 
 import pytest
 
@@ -38,3 +42,16 @@ def test_a_phase_that_raises_is_still_counted(clock):
 def test_summary_ranks_phases_by_time():
     assert PhaseTimer({"collect": 1.0, "update": 3.0}).summary() == "update 75% (3.0 s), collect 25% (1.0 s)"
     assert PhaseTimer().summary() == "no time measured"
+
+
+def test_sgemm_rate_counts_two_flops_per_multiply_add(monkeypatch):
+    # 30 products of 64 x 64 matrices (2 * 64**3 FLOPs each) between clock readings 10 s and 12 s
+    readings = iter([10.0, 12.0])
+    monkeypatch.setattr(timing.time, "perf_counter", lambda: next(readings))
+    assert timing.sgemm_gflops(size=64, calls=30) == pytest.approx(2 * 64**3 * 30 / 2.0 / 1e9)
+
+
+def test_python_m_aia_timing_prints_a_positive_rate():
+    result = subprocess.run([sys.executable, "-m", "aia.timing"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert float(result.stdout) > 0

@@ -47,6 +47,10 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
         "empty1: learners", "empty1: ARVI", "empty1: ARVI, min range 2 m", "empty1: Fig. 2 curves and results table",
         "empty1: Fig. 3-style trajectory of the first ADFQ-TS seed"]
     assert all(int(seconds) >= 0 for _, seconds in phases)
+    # The machine's matmul rate before and after, to read the wall times against.
+    speeds = dict(line.split("\t") for line in (tmp_path / "out" / "machine.tsv").read_text().splitlines())
+    assert list(speeds) == ["sgemm_gflops_start", "sgemm_gflops_end"]
+    assert all(float(gflops) > 0 for gflops in speeds.values())
 
 
 def test_an_unknown_setting_is_named(tmp_path):
