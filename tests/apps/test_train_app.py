@@ -65,3 +65,4 @@ def test_method_sets_algo_and_exploration(method, algo, exploration):
     with initialize_config_module(config_module="aia.conf", version_base="1.3"):
         cfg = compose(config_name="train", overrides=[f"method={method}", "experiment=paper_small3"])
     assert (cfg.algo.name, cfg.exploration.name, cfg.env.num_targets) == (algo, exploration, 3)
+    assert cfg.method == method  # the name aia-log plot --group-by method groups by

@@ -79,6 +79,19 @@ def test_a_mixed_sweep_splits_and_says_which_key_kept_a_job_apart(tmp_path, monk
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 8
 
 
+def test_a_sweep_over_methods_plots_grouped_by_method(tmp_path, monkeypatch, capsys):
+    """The issue's workflow: ``-m method=... seed=...`` trains a population per method, and ``aia-log plot
+    <sweep> --group-by method`` reads each run's method from its log."""
+    from aia.apps.log_cli import main as log_main
+
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, "method=dqn,adfq_ts", "seed=0,1")
+    assert "4 jobs in 2 population(s) of 2, 2 member(s)" in out
+    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 4
+    assert log_main(["plot", str(tmp_path / "sweep"), "--group-by", "method", "--out", str(tmp_path / "m.png")]) == 0
+    out = capsys.readouterr().out
+    assert "method=adfq_ts: 2 runs" in out and "method=dqn: 2 runs" in out
+
+
 def test_a_member_with_a_bad_value_fails_alone(tmp_path, monkeypatch, capsys):
     returns, _ = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,-1", fails=True)
     assert [r.status for r in returns] == [JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.COMPLETED,
