@@ -106,6 +106,7 @@ class PopulationLauncher(Launcher):
         setup_globals()
         assert self.config is not None and self.hydra_context is not None
         task = self._task()
+        self._check_settings(task)
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
         for i, overrides in enumerate(job_overrides):
@@ -148,6 +149,20 @@ class PopulationLauncher(Launcher):
             raise ConfigError("hydra.launcher.task", self.task, "the dotted path of a population entry (this app "
                               "declares none: hydra/launcher=population serves aia-train and aia-eval)")
         return task
+
+    def _check_settings(self, task: str) -> None:
+        """Refuse a bad ``hydra.launcher.*`` value with a :class:`~aia.errors.ConfigError` (the app prints one
+        line and exits with status 2) before any job folder is made."""
+        from aia.checks import check_flag, check_number, require  # imported here: see group_jobs
+
+        check_number("hydra.launcher.n_jobs", self.n_jobs, ge=1, integer=True)
+        check_flag("hydra.launcher.split_to_fill", self.split_to_fill)
+        try:
+            entry = _import(task)
+        except (ImportError, AttributeError, ValueError):
+            entry = None
+        require(callable(entry), "hydra.launcher.task", task, "the dotted path of a population entry such as "
+                "aia.apps.train.train_jobs or aia.apps.evaluate.evaluate_jobs")
 
     def _prepare(self, index: int, overrides: Sequence[str]) -> tuple[JobReturn, DictConfig]:
         """The job's folder and ``.hydra/`` configs by Hydra's ``run_job`` (its return value is the folder),

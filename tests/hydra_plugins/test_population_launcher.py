@@ -120,6 +120,25 @@ def test_an_app_without_a_population_entry_is_named(tmp_path, monkeypatch, capsy
     assert not (tmp_path / "0").exists()  # refused before any job was prepared
 
 
+@pytest.mark.parametrize("override, message", [
+    ("hydra.launcher.n_jobs=0", "hydra.launcher.n_jobs=0: expected an integer >= 1"),
+    ("hydra.launcher.n_jobs=abc", "hydra.launcher.n_jobs='abc': expected an integer >= 1"),
+    ("hydra.launcher.split_to_fill=maybe", "hydra.launcher.split_to_fill='maybe': expected true or false"),
+    ("hydra.launcher.task=nope.train_jobs", "hydra.launcher.task='nope.train_jobs': expected the dotted path of"),
+    ("hydra.launcher.task=aia.apps.train.nope", "hydra.launcher.task='aia.apps.train.nope': expected the dotted"),
+])
+def test_a_bad_launcher_setting_gets_one_line_before_any_job_folder(tmp_path, monkeypatch, capsys, override,
+                                                                    message):
+    monkeypatch.setattr(sys, "argv", ["aia-train", "-m", "seed=0,1", "hydra/launcher=population", override,
+                                      f"hydra.sweep.dir={tmp_path}"])
+    with pytest.raises(SystemExit) as info:
+        train_app.main()
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+    assert not (tmp_path / "0").exists()
+
+
 @pytest.mark.parametrize("groups, processes, expected", [
     ([[0, 1, 2, 3, 4]], 2, [[0, 1, 2], [3, 4]]),
     ([[0, 1, 2, 3, 4]], 4, [[0], [1], [2], [3, 4]]),  # ties: the first of the largest
