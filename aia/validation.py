@@ -59,6 +59,7 @@ def validate_train_config(cfg: DictConfig) -> None:
     require(isinstance(hidden, list) and len(hidden) > 0
             and all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in hidden),
             "hidden", hidden, "a non-empty list of layer widths >= 1, e.g. [128, 128, 128]")
+    check_choice("inner_dtype", _value(cfg, "inner_dtype"), ["float32", "bfloat16"])
     require(cfg.batch_size <= cfg.buffer_size, "batch_size", cfg.batch_size,
             f"at most buffer_size={cfg.buffer_size} (a batch is drawn from the replay buffer)")
     for switch in ("update", "env", "policy"):

@@ -22,15 +22,20 @@
    ``REV`` (the solo loop before this change, extracted with ``git archive``) and of the working tree, in the
    same run, so that P = 1 of the new loop is compared with the old loop on the same machine the same hour.
 
+``--inner-dtypes float32,bfloat16`` adds rows with the hidden-to-hidden matmuls in bfloat16 (``inner_dtype``,
+``conf/train.yaml``), each against P = 1 of its own dtype; ``--algos adfq`` keeps one learner.
+
 Prints a table and writes JSON (default ``benchmarks/results/population_<device>.json``).
 
     python benchmarks/population.py
     python benchmarks/population.py --members 1,5,20 --modes eager --baseline 54a9a5a
+    python benchmarks/population.py --algos adfq --modes compiled --members 1,5 --inner-dtypes float32,bfloat16
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import platform
@@ -76,12 +81,13 @@ def flops_per_member_frame(algo: str) -> float:
     return per_sample * (1 + BATCH * passes)
 
 
-def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str) -> dict:
+def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
+                       inner_dtype: str = "float32") -> dict:
     """Member-frames per second of the updating frames of a ``members``-member population."""
     experiment, exploration, _, _ = ROWS[algo]
     switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
     overrides = [f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
-                 f"device={device}", f"warmup_frames={warmup}", *switches]
+                 f"device={device}", f"warmup_frames={warmup}", f"inner_dtype={inner_dtype}", *switches]
 
     def job(length: int) -> tuple[float, dict]:
         cfgs = [_config(*overrides, f"frames={length}", f"seed={seed}") for seed in range(members)]
@@ -102,7 +108,8 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
     # a difference of two jobs says little: their cost is spread over all frames of the longer job
     split["evaluate"] = 1e3 * phases.get("evaluate", 0.0) / (warmup + frames)
     return {"kind": "population", "algo": algo, "network": "x".join(map(str, ROWS[algo][3])), "members": members,
-            "compiled": compile, "device": device, "warmup_frames": warmup, "updating_frames": frames,
+            "compiled": compile, "inner_dtype": inner_dtype, "device": device, "warmup_frames": warmup,
+            "updating_frames": frames,
             "job_s": job_s, "first_update_s": phases["first_update"],
             "member_frames_per_s": 1e3 * members / training_ms,
             "member_frames_per_s_with_evaluation": 1e3 * members / (training_ms + split["evaluate"]),
@@ -174,6 +181,9 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--members", default="1,5,20,80", help="comma-separated population sizes")
     parser.add_argument("--modes", default="eager,compiled", help="comma-separated: eager, compiled")
+    parser.add_argument("--algos", default=",".join(ROWS), help=f"comma-separated: {', '.join(ROWS)}")
+    parser.add_argument("--inner-dtypes", default="float32",
+                        help="comma-separated inner_dtype values to compare: float32, bfloat16")
     parser.add_argument("--warmup", type=int, default=200, help="warm-up frames of each job")
     parser.add_argument("--frames", type=int, default=300, help="updating frames of each job")
     parser.add_argument("--baseline", default=None, help="git commit of the solo loop to compare P = 1 with")
@@ -183,27 +193,33 @@ def main() -> None:
     modes = args.modes.split(",")
     if not set(modes) <= {"eager", "compiled"}:
         parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")
+    algos, dtypes = args.algos.split(","), args.inner_dtypes.split(",")
+    if not set(algos) <= set(ROWS):
+        parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ROWS)}")
+    if not set(dtypes) <= {"float32", "bfloat16"}:
+        parser.error(f"--inner-dtypes {args.inner_dtypes!r}: expected a comma-separated subset of float32,bfloat16")
 
     gflops_before = sgemm_gflops()
     rows = []
-    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'P':>4}{'member-frames/s':>17}{'x P=1':>7}{'with eval':>11}"
-          f"{'% of matmul peak':>18}  ms per step by phase")
-    for algo in ROWS:
-        for mode in modes:
-            solo_rate = None
-            for members in sizes:
-                row = measure_population(algo, members, mode == "compiled", args.warmup, args.frames, args.device)
-                solo_rate = row["member_frames_per_s"] if members == 1 else solo_rate
-                row["speedup_over_p1"] = row["member_frames_per_s"] / solo_rate if solo_rate else None
-                row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(algo) / (
-                    gflops_before * 1e9)
-                rows.append(row)
-                speedup = f"{row['speedup_over_p1']:.1f}" if row["speedup_over_p1"] else "-"
-                phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
-                                   sorted(row["ms_per_step_by_phase"].items(), key=lambda item: -item[1]))
-                print(f"{algo:<6}{row['network']:<13}{mode:<10}{members:>4}{row['member_frames_per_s']:>17,.0f}"
-                      f"{speedup:>7}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
-                      f"{100 * row['share_of_sgemm_peak']:>17.1f}%  {phases}", flush=True)
+    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'inner':<10}{'P':>4}{'member-frames/s':>17}{'x P=1':>7}"
+          f"{'with eval':>11}{'% of matmul peak':>18}  ms per step by phase")
+    for algo, mode, dtype in itertools.product(algos, modes, dtypes):
+        solo_rate = None
+        for members in sizes:
+            row = measure_population(algo, members, mode == "compiled", args.warmup, args.frames, args.device,
+                                     dtype)
+            solo_rate = row["member_frames_per_s"] if members == 1 else solo_rate
+            row["speedup_over_p1"] = row["member_frames_per_s"] / solo_rate if solo_rate else None
+            row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(algo) / (
+                gflops_before * 1e9)
+            rows.append(row)
+            speedup = f"{row['speedup_over_p1']:.1f}" if row["speedup_over_p1"] else "-"
+            phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
+                               sorted(row["ms_per_step_by_phase"].items(), key=lambda item: -item[1]))
+            print(f"{algo:<6}{row['network']:<13}{mode:<10}{dtype:<10}{members:>4}"
+                  f"{row['member_frames_per_s']:>17,.0f}"
+                  f"{speedup:>7}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
+                  f"{100 * row['share_of_sgemm_peak']:>17.1f}%  {phases}", flush=True)
     print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
           f"{'stacked network ms':>20}")
     for members in (1, 20):

@@ -36,12 +36,14 @@ def make_actor(cfg: DictConfig, env) -> TensorDictSequential:
 
 def make_stacked_network(cfgs: Sequence[DictConfig], obs_dim: int, num_actions: int) -> StackedQNetwork:
     """The members' networks stacked, member ``k`` initialised under ``torch.manual_seed(cfgs[k].seed)``
-    (the initialisation a population of one with that seed gets)."""
+    (the initialisation a population of one with that seed gets), the inner layers' matmuls in
+    ``cfg.inner_dtype``."""
     networks = []
     for cfg in cfgs:
         torch.manual_seed(cfg.seed)
         networks.append(make_network(cfg, obs_dim, num_actions))
-    return StackedQNetwork.stack(networks).to(cfgs[0].device)
+    inner_dtype = None if cfgs[0].inner_dtype == "float32" else getattr(torch, cfgs[0].inner_dtype)
+    return StackedQNetwork.stack(networks, inner_dtype).to(cfgs[0].device)
 
 
 def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:

@@ -53,6 +53,7 @@ TRAIN_CASES = [
     (["batch_size=2000"], ["batch_size=2000", "buffer_size=1000"]),
     (["frames=0"], ["frames=0", ">= 1"]),
     (["hidden=[]"], ["hidden=[]", "layer widths"]),
+    (["inner_dtype=float16"], ["inner_dtype='float16'", "bfloat16"]),
     (["device=cuda:7"], ["device='cuda:7'", "CUDA device"]),
     (["device=gpu"], ["device='gpu'", "cpu"]),
     (["exploration=thompson"], ["exploration='thompson'", "algo=dqn", "adfq"]),

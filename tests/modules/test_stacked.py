@@ -73,6 +73,22 @@ def test_gradients_of_the_summed_outputs_are_each_members_own_gradients():
         torch.testing.assert_close(stacked.bias1.grad[k, 0], network[-1].bias.grad)
 
 
+def test_bfloat16_inner_layers_round_only_the_matmuls_between_hidden_layers():
+    networks = _mlps(2, hidden=(16, 16, 16))
+    exact, rounded = StackedQNetwork.stack(networks), StackedQNetwork.stack(networks, torch.bfloat16)
+    obs = torch.randn(2, 6, 8, generator=torch.Generator().manual_seed(4))
+    out = rounded(obs)
+    assert out.dtype == torch.float32 and not torch.equal(out, exact(obs))  # rounded, so not the same bits
+    torch.testing.assert_close(out, exact(obs), rtol=0.05, atol=0.05)  # but about the same values
+    # the first layer alone is exact: with one hidden layer there is no inner matmul to round
+    one_hidden = _mlps(2, hidden=(16,))
+    torch.testing.assert_close(StackedQNetwork.stack(one_hidden, torch.bfloat16)(obs),
+                               StackedQNetwork.stack(one_hidden)(obs), rtol=0, atol=0)
+    (out ** 2).sum().backward()  # parameters and their gradients stay float32
+    assert all(p.dtype == p.grad.dtype == torch.float32 for p in rounded.parameters())
+    assert rounded.weight1.grad.abs().sum() > 0
+
+
 @pytest.mark.parametrize("adfq", [False, True])
 def test_stack_then_unstack_into_is_exact(adfq):
     sources = _adfqs(3) if adfq else _mlps(3)
