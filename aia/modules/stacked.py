@@ -117,10 +117,8 @@ class StackedQNetwork(nn.Module):
         last = self.num_layers - 1
         for i in range(self.num_layers):
             weight, bias = getattr(self, f"weight{i}"), getattr(self, f"bias{i}")
-            if self.inner_dtype is not None and 0 < i < last:
-                x = torch.baddbmm(bias.to(self.inner_dtype), x.to(self.inner_dtype), weight.to(self.inner_dtype))
-            else:
-                x = torch.baddbmm(bias, x.to(weight.dtype), weight)
+            dtype = self.inner_dtype if self.inner_dtype is not None and 0 < i < last else weight.dtype
+            x = torch.baddbmm(bias.to(dtype), x.to(dtype), weight.to(dtype))  # .to: no copy where dtypes agree
             if i < last:
                 x = self.activation(x)
         out = x.reshape(members, *batch, x.shape[-1])

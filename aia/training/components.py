@@ -42,8 +42,7 @@ def make_stacked_network(cfgs: Sequence[DictConfig], obs_dim: int, num_actions: 
     for cfg in cfgs:
         torch.manual_seed(cfg.seed)
         networks.append(make_network(cfg, obs_dim, num_actions))
-    inner_dtype = None if cfgs[0].inner_dtype == "float32" else getattr(torch, cfgs[0].inner_dtype)
-    return StackedQNetwork.stack(networks, inner_dtype).to(cfgs[0].device)
+    return StackedQNetwork.stack(networks, getattr(torch, cfgs[0].inner_dtype)).to(cfgs[0].device)
 
 
 def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:
