@@ -103,6 +103,19 @@ class StackedQNetwork(nn.Module):
                 getattr(self, f"weight{i}")[member].copy_(linear.weight.t())
                 getattr(self, f"bias{i}")[member, 0].copy_(linear.bias)
 
+    def layer_dtype(self, layer: int) -> torch.dtype:
+        """The dtype layer ``layer``'s matmul runs in (see :meth:`forward`)."""
+        inner = self.inner_dtype is not None and 0 < layer < self.num_layers - 1
+        return self.inner_dtype if inner else self.weight0.dtype
+
+    def in_layer_dtypes(self, params: dict[str, Tensor]) -> dict[str, Tensor]:
+        """``params`` (named as this network's) cast to the dtype their layer multiplies in, so that
+        :meth:`forward` casts nothing: for parameters that serve many forward passes unchanged, e.g. the
+        evaluation snapshots of :class:`~aia.modules.SnapshotPolicy`, whose 150-step rollouts of 250 worlds cast
+        their bfloat16 layers' weights once instead of every step."""
+        return {name: value.to(self.layer_dtype(int(name.removeprefix("weight").removeprefix("bias"))))
+                for name, value in params.items()}
+
     def forward(self, obs: Tensor) -> Tensor | tuple[Tensor, Tensor]:
         """Q-values ``[P, ..., A]`` (ADFQ: ``(mean, log_sd)``) of ``obs`` ``[P, ..., in]``, member by member.
 
@@ -116,8 +129,7 @@ class StackedQNetwork(nn.Module):
         x = obs.reshape(members, -1, features)
         last = self.num_layers - 1
         for i in range(self.num_layers):
-            weight, bias = getattr(self, f"weight{i}"), getattr(self, f"bias{i}")
-            dtype = self.inner_dtype if self.inner_dtype is not None and 0 < i < last else weight.dtype
+            weight, bias, dtype = getattr(self, f"weight{i}"), getattr(self, f"bias{i}"), self.layer_dtype(i)
             x = torch.baddbmm(bias.to(dtype), x.to(dtype), weight.to(dtype))  # .to: no copy where dtypes agree
             if i < last:
                 x = self.activation(x)

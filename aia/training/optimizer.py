@@ -21,7 +21,7 @@ own arithmetic traced into the graph, which recomputed its bias corrections per 
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -78,7 +78,7 @@ class Updater:
     outside the graphs. If inductor fails to compile the step, the
     updater says so in one line and runs it eager from then on: a compiler bug must not end a run that eager
     mode trains correctly (torch 2.13's CPU backend crashed on the one-graph step of two or more members,
-    pytorch/pytorch#196570, until :func:`update_step` split it in two graphs).
+    pytorch/pytorch#196570, until it was split in two graphs).
     """
 
     def __init__(self, loss: LossModule, optimizer: StackedAdam, target_updater: HardUpdate,
@@ -87,7 +87,17 @@ class Updater:
         self.optimizer = optimizer
         self.target_updater = target_updater
         self.grad_clip = float(grad_clip)
-        self._step = compiled_update(update_step) if compile else update_step
+        self._step = update_step
+        if compile and optimizer.params[0].shape[0] == 1:
+            self._step = compiled_update(update_step)
+        elif compile:
+            # Two or more members' step is two graphs (to the clipping factors; Adam): torch 2.13's CPU inductor
+            # fuses their per-member norms into Adam's in-place updates and crashes (KeyError 'bufN',
+            # pytorch/pytorch#196570). One member keeps one graph: 0.94-1.01 against 1.65-1.86 ms per 3x128
+            # update in 2,000-frame jobs (2026-12-02). Two compiled functions rather than a graph break in one:
+            # dynamo traced the step twice to place the break, 2.3 s of each population's first update (5
+            # members of 3 x 256, 2026-12-03), and the clipping factor now multiplies inside Adam's kernel.
+            self._step = two_graph_update(compiled_update(clipped_gradients), compiled_update(clipped_adam_update))
 
     def __call__(self, batch: TensorDictBase) -> Tensor:
         """Update on ``batch`` (``[P, B]``); returns the ``[P]`` members' mean losses, detached."""
@@ -112,28 +122,47 @@ class Updater:
 def update_step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
                 exp_avg_sqs: list[Tensor], step_sizes: Tensor, bias_correction2_sqrt: Tensor, grad_clip: float,
                 beta1: float, beta2: float, eps: float) -> Tensor:
-    """The members' mean losses ``[P]``, their gradients, per-member clipping and :func:`adam_update` in place."""
+    """The members' mean losses ``[P]``, their gradients, per-member clipping and :func:`adam_update` in place:
+    :func:`clipped_gradients`, then :func:`clipped_adam_update`."""
+    losses, grads, scale = clipped_gradients(loss, batch, params, grad_clip)
+    clipped_adam_update(params, grads, scale, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1,
+                        beta2, eps)
+    return losses
+
+
+def clipped_gradients(loss: LossModule, batch: TensorDictBase, params: list[Tensor], grad_clip: float
+                      ) -> tuple[Tensor, tuple[Tensor, ...], Tensor]:
+    """The members' mean losses ``[P]`` (detached), the gradients of their sum, and each member's clipping
+    factor ``[P]``: ``clip_grad_norm_``'s ``max_norm / (norm + 1e-6)`` capped at 1, over its own parameters."""
     member_losses = loss(batch)["loss"].flatten(1).mean(-1)  # reduction="none": [P, B] -> [P]
-    losses, members = member_losses.detach(), member_losses.shape[0]
+    members = member_losses.shape[0]
     grads = torch.autograd.grad(member_losses.sum(), params)
-    # Nothing that autograd.grad consumed may outlive it: a tensor with a grad_fn alive at the graph break below
-    # makes dynamo leave the backward to the autograd engine (a forward and a backward graph of their own): the
-    # compiled 3 x 256 ADFQ step of 5 members took 11.7-17.3 ms that way against 9.2-10.1 ms with the backward
-    # traced into the first graph (one thread, 2026-12-02).
-    del member_losses
-    # clip_grad_norm_'s norm and scale, per member (written out: _foreach_norm has no inductor kernel)
+    # clip_grad_norm_'s norm, per member (written out: _foreach_norm has no inductor kernel)
     norms = torch.stack([torch.linalg.vector_norm(g.reshape(members, -1), dim=-1) for g in grads], dim=-1)
     scale = torch.clamp(grad_clip / (torch.linalg.vector_norm(norms, dim=-1) + 1e-6), max=1.0)
+    return member_losses.detach(), grads, scale
+
+
+def clipped_adam_update(params: list[Tensor], grads: Sequence[Tensor], scale: Tensor, exp_avgs: list[Tensor],
+                        exp_avg_sqs: list[Tensor], step_sizes: Tensor, bias_correction2_sqrt: Tensor, beta1: float,
+                        beta2: float, eps: float) -> None:
+    """:func:`adam_update` with member ``k``'s gradients multiplied by ``scale[k]`` (clipping)."""
     with torch.no_grad():
+        members = scale.shape[0]
         scaled = [g * scale.reshape(members, *(1,) * (g.ndim - 1)) for g in grads]
-        # Compiled, two or more members' step is two graphs (to the clipped gradients; Adam): torch 2.13's CPU
-        # inductor fuses their per-member norms into Adam's in-place updates and crashes (KeyError 'bufN',
-        # pytorch/pytorch#196570). One member keeps one graph: 0.94-1.01 against 1.65-1.86 ms per 3x128 update
-        # in 2,000-frame jobs (2026-12-02). Eager: nothing.
-        if members > 1:
-            torch._dynamo.graph_break()
         adam_update(params, scaled, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1, beta2, eps)
-    return losses
+
+
+def two_graph_update(gradients: Callable, adam: Callable) -> Callable:
+    """:func:`update_step` made of ``gradients`` (:func:`clipped_gradients`) and ``adam``
+    (:func:`clipped_adam_update`), each compiled on its own."""
+    def step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
+             exp_avg_sqs: list[Tensor], step_sizes: Tensor, bias_correction2_sqrt: Tensor, grad_clip: float,
+             beta1: float, beta2: float, eps: float) -> Tensor:
+        losses, grads, scale = gradients(loss, batch, params, grad_clip)
+        adam(params, grads, scale, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1, beta2, eps)
+        return losses
+    return step
 
 
 def adam_update(params: list[Tensor], grads: list[Tensor], exp_avgs: list[Tensor], exp_avg_sqs: list[Tensor],

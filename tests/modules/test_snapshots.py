@@ -94,6 +94,23 @@ def test_compiled_snapshot_policy_chooses_the_eager_actions():
         assert torch.equal(_act(compiled, obs), _act(eager, obs))
 
 
+def test_a_bfloat16_network_s_snapshots_act_on_weights_cast_once_as_the_network_itself():
+    networks = []
+    for k in range(2):
+        torch.manual_seed(k)
+        networks.append(make_q_network(8, A, (16, 16, 16)))
+    network = StackedQNetwork.stack(networks, inner_dtype=torch.bfloat16)
+    policy = SnapshotPolicy(network, A, epsilon=0.0)
+    policy.load([parameter_snapshot(network)], [[0, 1]])
+    # loaded in the dtype each layer multiplies in: the inner layers' weights are cast once, not every step
+    assert [policy._params[f"weight{i}"].dtype for i in range(4)] == [torch.float32, torch.bfloat16,
+                                                                        torch.bfloat16, torch.float32]
+    obs = torch.randn(2, 64, 8, generator=torch.Generator().manual_seed(3))
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        action = _act(policy, obs.reshape(-1, 8)).reshape(2, 64)
+    assert torch.equal(action, network(obs).argmax(-1))  # bit for bit: the same casts, made earlier
+
+
 def test_load_restarts_the_noise_streams():
     network = _stacked(1)
     policy = SnapshotPolicy(network, A, epsilon=0.5)
