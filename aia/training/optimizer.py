@@ -20,6 +20,7 @@ own arithmetic traced into the graph, which recomputed its bias corrections per 
 
 from __future__ import annotations
 
+import functools
 import sys
 from collections.abc import Callable, Sequence
 
@@ -97,7 +98,8 @@ class Updater:
             # update in 2,000-frame jobs (2026-12-02). Two compiled functions rather than a graph break in one:
             # dynamo traced the step twice to place the break, 2.3 s of each population's first update (5
             # members of 3 x 256, 2026-12-03), and the clipping factor now multiplies inside Adam's kernel.
-            self._step = two_graph_update(compiled_update(clipped_gradients), compiled_update(clipped_adam_update))
+            self._step = functools.partial(update_step, gradients=compiled_update(clipped_gradients),
+                                           adam=compiled_update(clipped_adam_update))
 
     def __call__(self, batch: TensorDictBase) -> Tensor:
         """Update on ``batch`` (``[P, B]``); returns the ``[P]`` members' mean losses, detached."""
@@ -121,12 +123,13 @@ class Updater:
 
 def update_step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
                 exp_avg_sqs: list[Tensor], step_sizes: Tensor, bias_correction2_sqrt: Tensor, grad_clip: float,
-                beta1: float, beta2: float, eps: float) -> Tensor:
+                beta1: float, beta2: float, eps: float, gradients: Callable | None = None,
+                adam: Callable | None = None) -> Tensor:
     """The members' mean losses ``[P]``, their gradients, per-member clipping and :func:`adam_update` in place:
-    :func:`clipped_gradients`, then :func:`clipped_adam_update`."""
-    losses, grads, scale = clipped_gradients(loss, batch, params, grad_clip)
-    clipped_adam_update(params, grads, scale, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1,
-                        beta2, eps)
+    ``gradients`` (:func:`clipped_gradients`, or a compiled copy), then ``adam`` (:func:`clipped_adam_update`)."""
+    losses, grads, scale = (gradients or clipped_gradients)(loss, batch, params, grad_clip)
+    (adam or clipped_adam_update)(params, grads, scale, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt,
+                                  beta1, beta2, eps)
     return losses
 
 
@@ -151,18 +154,6 @@ def clipped_adam_update(params: list[Tensor], grads: Sequence[Tensor], scale: Te
         members = scale.shape[0]
         scaled = [g * scale.reshape(members, *(1,) * (g.ndim - 1)) for g in grads]
         adam_update(params, scaled, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1, beta2, eps)
-
-
-def two_graph_update(gradients: Callable, adam: Callable) -> Callable:
-    """:func:`update_step` made of ``gradients`` (:func:`clipped_gradients`) and ``adam``
-    (:func:`clipped_adam_update`), each compiled on its own."""
-    def step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
-             exp_avg_sqs: list[Tensor], step_sizes: Tensor, bias_correction2_sqrt: Tensor, grad_clip: float,
-             beta1: float, beta2: float, eps: float) -> Tensor:
-        losses, grads, scale = gradients(loss, batch, params, grad_clip)
-        adam(params, grads, scale, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1, beta2, eps)
-        return losses
-    return step
 
 
 def adam_update(params: list[Tensor], grads: list[Tensor], exp_avgs: list[Tensor], exp_avg_sqs: list[Tensor],
