@@ -113,8 +113,8 @@ class StackedQNetwork(nn.Module):
         :meth:`forward` casts nothing: for parameters that serve many forward passes unchanged, e.g. the
         evaluation snapshots of :class:`~aia.modules.SnapshotPolicy`, whose 150-step rollouts of 250 worlds cast
         their bfloat16 layers' weights once instead of every step."""
-        return {name: value.to(self.layer_dtype(int(name.removeprefix("weight").removeprefix("bias"))))
-                for name, value in params.items()}
+        return {f"{kind}{i}": params[f"{kind}{i}"].to(self.layer_dtype(i))
+                for i in range(self.num_layers) for kind in ("weight", "bias")}
 
     def forward(self, obs: Tensor) -> Tensor | tuple[Tensor, Tensor]:
         """Q-values ``[P, ..., A]`` (ADFQ: ``(mean, log_sd)``) of ``obs`` ``[P, ..., in]``, member by member.

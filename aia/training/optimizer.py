@@ -121,18 +121,6 @@ class Updater:
         return losses
 
 
-def update_step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
-                exp_avg_sqs: list[Tensor], step_sizes: Tensor, bias_correction2_sqrt: Tensor, grad_clip: float,
-                beta1: float, beta2: float, eps: float, gradients: Callable | None = None,
-                adam: Callable | None = None) -> Tensor:
-    """The members' mean losses ``[P]``, their gradients, per-member clipping and :func:`adam_update` in place:
-    ``gradients`` (:func:`clipped_gradients`, or a compiled copy), then ``adam`` (:func:`clipped_adam_update`)."""
-    losses, grads, scale = (gradients or clipped_gradients)(loss, batch, params, grad_clip)
-    (adam or clipped_adam_update)(params, grads, scale, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt,
-                                  beta1, beta2, eps)
-    return losses
-
-
 def clipped_gradients(loss: LossModule, batch: TensorDictBase, params: list[Tensor], grad_clip: float
                       ) -> tuple[Tensor, tuple[Tensor, ...], Tensor]:
     """The members' mean losses ``[P]`` (detached), the gradients of their sum, and each member's clipping
@@ -154,6 +142,17 @@ def clipped_adam_update(params: list[Tensor], grads: Sequence[Tensor], scale: Te
         members = scale.shape[0]
         scaled = [g * scale.reshape(members, *(1,) * (g.ndim - 1)) for g in grads]
         adam_update(params, scaled, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1, beta2, eps)
+
+
+def update_step(loss: LossModule, batch: TensorDictBase, params: list[Tensor], exp_avgs: list[Tensor],
+                exp_avg_sqs: list[Tensor], step_sizes: Tensor, bias_correction2_sqrt: Tensor, grad_clip: float,
+                beta1: float, beta2: float, eps: float, gradients: Callable = clipped_gradients,
+                adam: Callable = clipped_adam_update) -> Tensor:
+    """The members' mean losses ``[P]``, their gradients, per-member clipping and :func:`adam_update` in place:
+    ``gradients`` (:func:`clipped_gradients`, or a compiled copy), then ``adam`` (:func:`clipped_adam_update`)."""
+    losses, grads, scale = gradients(loss, batch, params, grad_clip)
+    adam(params, grads, scale, exp_avgs, exp_avg_sqs, step_sizes, bias_correction2_sqrt, beta1, beta2, eps)
+    return losses
 
 
 def adam_update(params: list[Tensor], grads: list[Tensor], exp_avgs: list[Tensor], exp_avg_sqs: list[Tensor],
