@@ -140,7 +140,7 @@ def measure_vmap_update(members: int, repeats: int = 30) -> dict:
         torch.vmap(member_loss, randomness="different")(online, target, batches).sum().backward()
 
     stacked_network = make_stacked_network([cfg] * members, 8, NUM_ACTIONS)
-    stacked = make_loss(cfg, make_qvalue_actor(stacked_network, env.action_spec))
+    stacked = make_loss([cfg], make_qvalue_actor(stacked_network, env.action_spec))
     stacked_batch = batches.select(*stacked.in_keys)
 
     def stacked_update() -> None:

@@ -63,7 +63,7 @@ def measure_updates(setting: str, algo: str, device: str, compile: bool, updates
                   f"device={device}")
     env = make_env(setting, batch_size=64, device=device, seed=0)
     network = make_stacked_network([cfg], env.observation_spec["observation"].shape[-1], env.action_spec.n)
-    loss = make_loss(cfg, make_qvalue_actor(network, env.action_spec, adfq=algo == "adfq"))
+    loss = make_loss([cfg], make_qvalue_actor(network, env.action_spec, adfq=algo == "adfq"))
     # 64 transitions with the keys that the loop's replay buffer keeps (the loss's in_keys), one member
     batch = env.rollout(2)[:, -1].select(*loss.in_keys).unsqueeze(0)
     updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)

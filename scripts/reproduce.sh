@@ -14,8 +14,9 @@
 #   SEEDS        learner seeds [0,1,2,3,4];  ARVI_SEEDS  planner seeds [0,...,9]
 #   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
 #   TRAIN_OVERRIDES  more aia-train overrides, space-separated, e.g. "device=cuda" or "compile.update=false" []
-#   JOBS         learner populations in parallel [2] (each method's seeds train as one population:
-#                hydra/launcher=population);  OUT  output folder [outputs/repro]
+#   JOBS         populations in parallel [2] (one aia-train -m over all settings, hydra/launcher=population:
+#                per setting, DQN with Double DQN and ADFQ-egreedy with ADFQ-TS each train all their seeds as one
+#                population, the largest populations first);  OUT  output folder [outputs/repro]
 #   FIGURES      where the figures and tables go [$OUT/figures]
 #   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
 #   ARVI_EPISODES  episodes per ARVI seed, planned together in one batch [5]
@@ -91,34 +92,65 @@ for setting in $SETTINGS; do
     echo "unknown setting '$setting': expected some of empty1 obstacles1 small2 small3" >&2
     exit 2
   fi
-  phase "$setting: learners (seeds $SEEDS), one population per method, $JOBS at a time"
-  aia-train -m hydra/launcher=population "experiment=paper_$setting" "method=$METHODS" "seed=$SEEDS" threads=1 \
-    "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/$setting/learners" \
-    "$RUN_NAME" 'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
-  baselines=()
+done
+read -r -a SETTING_LIST <<< "$SETTINGS"
+joined() { local IFS=,; echo "$*"; }
+EXPERIMENTS=$(joined "${SETTING_LIST[@]/#/paper_}")
+OUT_ABS=$(cd "$OUT" && pwd)
+# Each sweep keeps its multirun.yaml in $OUT/sweeps/<name>; its runs go to $OUT/<setting>/<name>/<what varies>
+# (an absolute hydra.sweep.subdir: Hydra joins it to the sweep folder as os.path.join does, i.e. it is kept).
+run_dir() { echo "hydra.sweep.subdir=$OUT_ABS/\${hydra:runtime.choices.env}/$1/\${hydra.job.override_dirname}"; }
+
+# One sweep of every setting's learners: DQN with Double DQN and ADFQ-egreedy with ADFQ-TS share a program
+# (aia/training/members.py), so each setting trains two populations of 2 x seeds members; the launcher starts
+# the largest populations first, $JOBS at a time.
+phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations, $JOBS at a time"
+aia-train -m hydra/launcher=population "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEEDS" threads=1 \
+  "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/sweeps/learners" \
+  "$(run_dir learners)" \
+  'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
+ENVS=$(joined "${SETTING_LIST[@]}")
+for min_range in $ARVI_MIN_RANGES; do
+  name=arvi; label=ARVI
+  if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
+  phase "$label: $SETTINGS x seeds $ARVI_SEEDS"
+  aia-eval -m "hydra.launcher.n_jobs=$JOBS" policy=arvi "env=$ENVS" "seed=$ARVI_SEEDS" \
+    "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_AND_LAUNCHER[@]}" \
+    "hydra.sweep.dir=$OUT/sweeps/$name" "$(run_dir "$name")" \
+    'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
+done
+
+# figures SETTING: the setting's Fig. 2 curves and results table, and a Fig. 3-style trajectory of its first
+# ADFQ-TS seed (its output in $FIGURES/SETTING.log)
+figures() {
+  local setting=$1 baselines=() min_range name label config run
   for min_range in $ARVI_MIN_RANGES; do
     name=arvi; label=ARVI
     if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
-    phase "$setting: $label (seeds $ARVI_SEEDS)"
-    aia-eval -m "hydra.launcher.n_jobs=$JOBS" policy=arvi "env=$setting" "seed=$ARVI_SEEDS" \
-      "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_AND_LAUNCHER[@]}" "hydra.sweep.dir=$OUT/$setting/$name" "$RUN_NAME" \
-      'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
   done
-  phase "$setting: Fig. 2 curves and results table"
   # shellcheck disable=SC2086  # WHERE holds several words on purpose
   aia-log plot "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration --x episode \
     --window 4 "${baselines[@]}" --title "$setting" --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
-  phase "$setting: Fig. 3-style trajectory of the first ADFQ-TS seed"
   config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
-  if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; continue; fi
+  if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; return; fi
   run=$(dirname "$(dirname "$config")")
   # quoted: the run's folder name holds '=' and ',' (method=adfq_ts,seed=0), which Hydra's grammar reserves
   aia-eval "checkpoint='$run/checkpoints/last.pt'" episodes=5 seed=0 threads=1 \
     "hydra.run.dir=$OUT/$setting/trajectory"
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
     --out "$FIGURES/${setting}_trajectory.png"
+}
+phase "figures: Fig. 2 curves, results tables and Fig. 3-style trajectories, $JOBS settings at a time"
+running=0 failed=0
+for setting in $SETTINGS; do
+  figures "$setting" > "$FIGURES/$setting.log" 2>&1 &
+  running=$(( running + 1 ))
+  if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
 done
+while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
+for setting in $SETTINGS; do echo "-- $setting"; cat "$FIGURES/$setting.log"; done
+if (( failed )); then echo "a setting's figures failed (its output above)" >&2; exit 1; fi
 phase ""
 machine_speed end
 echo "done in $(( $(date +%s) - start )) s (each phase's in $OUT/wall_time.tsv); figures and tables in $FIGURES"

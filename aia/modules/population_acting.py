@@ -3,7 +3,7 @@
 The collector steps one env of ``P * W`` worlds, member-major (member ``k`` owns worlds ``k W .. k W + W - 1``).
 One call runs the :class:`~aia.modules.StackedQNetwork` on every member's observations and then each member's
 exploration: uniformly random actions during its warm-up frames, then epsilon-greedy on its own linear
-schedule, or ADFQ's Thompson sampling (``argmax_a q_a``, ``q_a ~ N(mean_a, sd_a^2)``).
+schedule, or ADFQ's Thompson sampling (``argmax_a q_a``, ``q_a ~ N(mean_a, sd_a^2)``), each member its own.
 
 All draws are counter-based (:mod:`aia.envs.rng`): a pure function of the member's seed, the policy's step
 count and the world's slot, computed a block of steps at a time (:class:`~aia.envs.rng.CounterStream`). So a
@@ -39,8 +39,9 @@ class PopulationQPolicy(TensorDictModuleBase):
         num_actions: size of the discrete action space.
         worlds_per_member: ``W``.
         seeds: one seed per member (its exploration stream).
-        thompson: Thompson sampling (ADFQ) instead of epsilon-greedy.
-        eps_init, eps_end, annealing_frames: each member's linear epsilon schedule over its frames.
+        thompson: per member, Thompson sampling (ADFQ) instead of epsilon-greedy (one bool: every member's).
+        eps_init, eps_end, annealing_frames: each member's linear epsilon schedule over its frames (unused by a
+            member that samples).
         warmup_frames: frames of uniformly random actions at the start of each member's run.
 
     Exploration acts only when the exploration type is ``RANDOM`` or unset (TorchRL's convention); otherwise
@@ -48,31 +49,35 @@ class PopulationQPolicy(TensorDictModuleBase):
     """
 
     def __init__(self, network: StackedQNetwork, num_actions: int, worlds_per_member: int, seeds: Sequence[int],
-                 thompson: bool, eps_init: Sequence[float], eps_end: Sequence[float],
+                 thompson: bool | Sequence[bool], eps_init: Sequence[float], eps_end: Sequence[float],
                  annealing_frames: Sequence[int], warmup_frames: int, in_key: str = "observation",
                  action_key: str = "action") -> None:
         super().__init__()
         members = len(seeds)
         if network.num_members != members:
             raise ValueError(f"{members} seeds for a network of {network.num_members} members")
-        if thompson and network.log_sd_bounds is None:
+        samples = [bool(thompson)] * members if isinstance(thompson, bool) else [bool(t) for t in thompson]
+        if len(samples) != members:
+            raise ValueError(f"{len(samples)} exploration kinds for {members} members")
+        if any(samples) and network.log_sd_bounds is None:
             raise TypeError("Thompson sampling needs a network that returns (mean, log_sd): the ADFQ network")
         self.in_keys = [in_key]
         self.out_keys = [action_key]
         self.network = network
         self.num_actions = num_actions
         self.worlds = worlds_per_member
-        self.thompson = thompson
+        self.samples = samples  # which members explore by Thompson sampling
         self.warmup_frames = warmup_frames
         device = network.weight0.device
         self.keys = rng.seed_keys(list(seeds), ACTING_PURPOSE, device)
+        self._sampling = torch.tensor(samples, device=device).unsqueeze(-1)  # [P, 1]
         as_tensor = lambda values: torch.tensor(list(values), dtype=torch.float64, device=device)  # noqa: E731
         self.eps_init, self.eps_end = as_tensor(eps_init), as_tensor(eps_end)
         self.annealing_frames = as_tensor(annealing_frames)
         W, A = worlds_per_member, num_actions
         self._draws = {"explore": rng.CounterStream(rng.uniform, self.keys, _EXPLORE_STREAM, W),
                        "random": rng.CounterStream(rng.uniform, self.keys, _RANDOM_STREAM, W)}
-        if thompson:
+        if any(samples):
             self._draws["thompson"] = rng.CounterStream(rng.normal, self.keys, _THOMPSON_STREAM, W * A,
                                                         network.weight0.dtype)
 
@@ -91,8 +96,13 @@ class PopulationQPolicy(TensorDictModuleBase):
         """Frames each member has collected under exploration so far."""
         return self.steps * self.worlds
 
+    @property
+    def egreedy_members(self) -> list[int]:
+        """The members that explore epsilon-greedily (the others sample)."""
+        return [k for k, sampling in enumerate(self.samples) if not sampling]
+
     def epsilon(self) -> Tensor:
-        """``[P]`` each member's epsilon now (its schedule at :attr:`frames`)."""
+        """``[P]`` each member's epsilon now (its schedule at :attr:`frames`; a sampling member's is unused)."""
         fraction = (self.frames / self.annealing_frames).clamp(0.0, 1.0)
         return self.eps_init + fraction * (self.eps_end - self.eps_init)
 
@@ -112,16 +122,21 @@ class PopulationQPolicy(TensorDictModuleBase):
     def _explore(self, out: Tensor | tuple[Tensor, Tensor]) -> Tensor:
         """``[P, W]`` exploring actions of this step (the draws of counter :attr:`steps`)."""
         warm = self.frames < self.warmup_frames  # read before the draws advance the step count
-        epsilon = None if self.thompson or warm else self.epsilon()
-        if self.thompson:
+        every_member_samples = all(self.samples)
+        epsilon = None if every_member_samples or warm else self.epsilon()
+        greedy = None if every_member_samples else (out[0] if isinstance(out, tuple) else out).argmax(-1)
+        if any(self.samples):
             mean, log_sd = out
             noise = self._draws["thompson"].next().reshape(mean.shape)
-            action = (mean + log_sd.exp() * noise).argmax(-1)
+            sampled = (mean + log_sd.exp() * noise).argmax(-1)
+            action = sampled if greedy is None else torch.where(self._sampling, sampled, greedy)
         else:
-            action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
+            action = greedy
         explore, random = self._draws["explore"].next(), self._draws["random"].next()
         if warm:  # every action uniformly random
             return (random * self.num_actions).long()
         if epsilon is None:  # Thompson sampling explores by itself
             return action
-        return torch.where(explore < epsilon.unsqueeze(-1), (random * self.num_actions).long(), action)
+        # a sampling member never takes the epsilon branch
+        epsilon_greedy = (explore < epsilon.unsqueeze(-1)) & ~self._sampling
+        return torch.where(epsilon_greedy, (random * self.num_actions).long(), action)

@@ -15,7 +15,7 @@ from torchrl.record.loggers.csv import CSVLogger
 
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.logging.segments import RESUMED_AFTER_KEY, next_segment
-from aia.losses import ADFQLoss
+from aia.losses import ADFQLoss, use_memberwise_double
 from aia.modules import ADFQNetwork, StackedQNetwork, make_q_network
 from aia.modules.q_networks import make_qvalue_actor
 
@@ -45,15 +45,21 @@ def make_stacked_network(cfgs: Sequence[DictConfig], obs_dim: int, num_actions: 
     return StackedQNetwork.stack(networks, getattr(torch, cfgs[0].inner_dtype)).to(cfgs[0].device)
 
 
-def make_loss(cfg: DictConfig, actor: TensorDictSequential) -> LossModule:
-    """DQN, Double DQN (TorchRL's DQNLoss) or ADFQ on ``actor``, with per-sample losses (``reduction="none"``:
-    the optimiser step averages each member's own)."""
+def make_loss(cfgs: Sequence[DictConfig], actor: TensorDictSequential) -> LossModule:
+    """The population's loss on ``actor``, with per-sample losses (``reduction="none"``: the optimiser step
+    averages each member's own): ADFQ, or TorchRL's DQNLoss for DQN and Double DQN members, with a
+    :class:`~aia.losses.MemberwiseDoubleTD0` target when the population mixes the two."""
+    cfg = cfgs[0]  # the settings every member shares
     if cfg.algo.name == "adfq":
         return ADFQLoss(actor, gamma=cfg.gamma, noise=cfg.algo.noise, var_min=cfg.algo.var_min,
                         sd_max=cfg.algo.sd_max, reward_var=cfg.algo.reward_var,
                         loss_function=cfg.algo.loss_function, reduction="none")
+    double = [c.algo.name == "ddqn" for c in cfgs]
+    mixed = len(set(double)) > 1
     loss = DQNLoss(actor, loss_function=cfg.algo.loss_function, delay_value=True,
-                   double_dqn=cfg.algo.name == "ddqn", action_space="categorical", reduction="none")
+                   double_dqn=all(double), action_space="categorical", reduction="none")
+    if mixed:
+        return use_memberwise_double(loss, double, cfg.gamma)
     loss.make_value_estimator(gamma=cfg.gamma)
     return loss
 

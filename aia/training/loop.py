@@ -142,11 +142,11 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     actor = make_qvalue_actor(network, env.action_spec, adfq=cfg.algo.name == "adfq")
     annealing = [max(1, int(c.exploration.get("annealing_fraction", 1.0) * cfg.frames)) for c in cfgs]
     policy = PopulationQPolicy(
-        network, num_actions, W, seeds, thompson=cfg.exploration.name == "thompson",
+        network, num_actions, W, seeds, thompson=[c.exploration.name == "thompson" for c in cfgs],
         eps_init=[c.exploration.get("eps_init", 0.0) for c in cfgs],
         eps_end=[c.exploration.get("eps_end", 0.0) for c in cfgs], annealing_frames=annealing,
         warmup_frames=cfg.warmup_frames)
-    loss = make_loss(cfg, actor)
+    loss = make_loss(cfgs, actor)
     target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
     optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [c.lr for c in cfgs])
     # cfg.compile.update would be DictConfig's dict method update (always true), not the switch
@@ -192,7 +192,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     measured_before = sum(shared.seconds.values())
     start = time.perf_counter()
     bar = tqdm(total=cfg.frames, initial=shared.frames, unit="frame", unit_scale=True, mininterval=1.0,
-               desc=cfg.algo.name if P == 1 else f"{cfg.algo.name} x{P}")
+               desc=_description(cfgs))
     batches = iter(collector)
     in_keys = loss.in_keys
     # Python's full collections walk every object, and torch (and compiling) leave about half a million of them:
@@ -258,6 +258,12 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     run.save(base_env, episode_step)
     run.log_summary(remaining / (time.perf_counter() - start))
     return run.states()
+
+
+def _description(cfgs: list[DictConfig]) -> str:
+    """The progress bar's label: the members' methods (or algorithms), and their number if more than one."""
+    names = ",".join(dict.fromkeys(str(c.get("method") or c.algo.name) for c in cfgs))
+    return names if len(cfgs) == 1 else f"{names} x{len(cfgs)}"
 
 
 def _checkpoints(cfgs: list[DictConfig], out_dirs: list[Path]) -> list[dict | None]:
@@ -331,18 +337,21 @@ class _Run:
 
     def log_training(self, losses: torch.Tensor, policy: PopulationQPolicy) -> None:
         """Each member's loss (and epsilon) at this frame."""
-        epsilons = None if policy.thompson else policy.epsilon().tolist()
+        egreedy = policy.egreedy_members
+        epsilons = policy.epsilon().tolist() if egreedy else []
         for member, (logger, value) in enumerate(zip(self.loggers, losses.tolist(), strict=True)):
             if logger:
                 logger.log_scalar("train/loss", value, step=self.shared.frames)
-                if epsilons is not None:
+                if member in egreedy:
                     logger.log_scalar("train/epsilon", epsilons[member], step=self.shared.frames)
 
     def status(self, policy: PopulationQPolicy) -> dict[str, str]:
-        """What the progress bar shows: the last evaluation score (mean over members) and epsilon."""
+        """What the progress bar shows: the last evaluation score (mean over members) and the first epsilon-greedy
+        member's epsilon."""
         status = {"score": f"{sum(s[-1] for s in self.scores) / len(self.scores):.0f}"}
-        if not policy.thompson:
-            status["eps"] = f"{policy.epsilon()[0].item():.2f}"
+        egreedy = policy.egreedy_members
+        if egreedy:
+            status["eps"] = f"{policy.epsilon()[egreedy[0]].item():.2f}"
         return status
 
     def save(self, base_env, episode_step: int) -> None:

@@ -1,8 +1,10 @@
 """Which runs can train as one population, and what may differ between its members.
 
-Members of one population share the env setting, the network, the algorithm and every counter of the loop;
-only the keys of :data:`MEMBER_KEYS` may differ. :func:`population_signature` is what the population launcher
-groups jobs by; :func:`check_population` refuses a group forced together that differs elsewhere.
+Members of one population share the env setting, the network, the loss's family and every counter of the loop;
+only the keys of :data:`MEMBER_KEYS` may differ, and ``algo.name`` only within one of :data:`FAMILIES`' families
+(DQN and Double DQN differ only in their targets' next action; ADFQ has another network and loss).
+:func:`population_signature` is what the population launcher groups jobs by; :func:`check_population` refuses
+a group forced together that differs elsewhere.
 """
 
 from __future__ import annotations
@@ -11,10 +13,13 @@ from collections.abc import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-# What each member sets for itself: its seed, its learning rate, its epsilon schedule, its checkpoint to
-# resume from. (Thompson sampling has no schedule; the key still may differ, it is simply unused.)
-MEMBER_KEYS = ("seed", "lr", "exploration.eps_init", "exploration.eps_end", "exploration.annealing_fraction",
-               "resume")
+# What each member sets for itself: its seed, its learning rate, its method (algorithm within a family, and
+# exploration: epsilon-greedy with its schedule, or Thompson sampling), its checkpoint to resume from.
+MEMBER_KEYS = ("seed", "lr", "method", "algo.name", "exploration.name", "exploration.eps_init", "exploration.eps_end",
+               "exploration.annealing_fraction", "resume")
+# Member keys whose values fall into families: members may differ in such a key only within one family (a value
+# not listed is a family of its own).
+FAMILIES: dict[str, dict[object, str]] = {"algo.name": {"dqn": "dqn", "ddqn": "dqn"}}
 
 
 class PopulationError(ValueError):
@@ -37,8 +42,14 @@ def flat_settings(cfg: DictConfig) -> dict[str, object]:
 
 
 def shared_settings(cfg: DictConfig) -> dict[str, object]:
-    """Every setting of ``cfg`` that all members of its population must share (all but :data:`MEMBER_KEYS`)."""
-    return {key: value for key, value in flat_settings(cfg).items() if key not in MEMBER_KEYS}
+    """Every setting of ``cfg`` that all members of its population must share: all but :data:`MEMBER_KEYS`, and
+    the family of each key of :data:`FAMILIES`."""
+    flat = flat_settings(cfg)
+    shared = {key: value for key, value in flat.items() if key not in MEMBER_KEYS}
+    for key, families in FAMILIES.items():
+        if key in flat:
+            shared[key] = families.get(flat[key], flat[key])
+    return shared
 
 
 def population_signature(cfg: DictConfig) -> str:
@@ -47,10 +58,13 @@ def population_signature(cfg: DictConfig) -> str:
 
 
 def first_difference(a: DictConfig, b: DictConfig) -> tuple[str, object, object] | None:
-    """The first shared setting (alphabetically) in which ``a`` and ``b`` differ, with both values."""
+    """The first shared setting (alphabetically) in which ``a`` and ``b`` differ, with both values (of a key of
+    :data:`FAMILIES`: the members' own values, not their families)."""
     sa, sb = shared_settings(a), shared_settings(b)
     for key in sorted(sa.keys() | sb.keys()):
         if sa.get(key) != sb.get(key):
+            if key in FAMILIES:
+                return key, OmegaConf.select(a, key), OmegaConf.select(b, key)
             return key, sa.get(key), sb.get(key)
     return None
 
@@ -64,4 +78,16 @@ def check_population(cfgs: Sequence[DictConfig]) -> None:
         if difference is not None:
             key, first, other = difference
             raise PopulationError(f"members 0 and {index} differ in {key} ({first!r} vs {other!r}); a population "
-                                  f"may differ only in {', '.join(MEMBER_KEYS)}")
+                                  f"may differ only in {', '.join(MEMBER_KEYS)} (algo.name only between dqn and "
+                                  "ddqn)")
+
+
+def population_work(cfgs: Sequence[DictConfig]) -> float:
+    """A rough relative cost of running ``cfgs`` as one population, to start the largest first: members x frames
+    (an evaluation: episodes) x (1 + the hidden layers' total width / 256). Fitted to nothing but the order: a
+    population of 3 x 256 networks costs about 1.7x one of 3 x 128 per member-frame on the 2-core CPU
+    (collection, evaluation and update, 2026-12-03 protocol run)."""
+    first = cfgs[0]
+    length = first.get("frames") or first.get("episodes") or 1
+    width = sum(first.get("hidden") or ())
+    return len(cfgs) * float(length) * (1.0 + width / 256)

@@ -11,7 +11,8 @@ Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_
    the app declares: for ``aia-train`` :func:`aia.apps.train.train_jobs`, which trains the group as one
    population, for ``aia-eval`` :func:`aia.apps.evaluate.evaluate_jobs`, which plans all seeds' ARVI
    episodes in one batch), groups in parallel processes up to ``n_jobs``, each with its share of the cores
-   as its torch thread pool;
+   as its torch thread pool, the largest first (:func:`aia.training.members.population_work`: the longest
+   populations do not end up last, alone on one core);
 4. returns one ``JobReturn`` per job, completed with the job's own result or failed with its own error.
 
 Its settings are ``conf/hydra/launcher/population.yaml`` (``n_jobs``, ``task``), found by Hydra in aia's
@@ -72,6 +73,13 @@ def split_to_fill(groups: list[list[int]], processes: int) -> list[list[int]]:
     return groups
 
 
+def largest_first(groups: list[list[int]], cfgs: Sequence[DictConfig]) -> list[list[int]]:
+    """``groups`` by decreasing :func:`~aia.training.members.population_work` (ties keep their order)."""
+    from aia.training.members import population_work  # imported here: see group_jobs
+
+    return sorted(groups, key=lambda group: -population_work([cfgs[i] for i in group]))
+
+
 def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | None) -> list[tuple[bool, object]]:
     """Run one population (in a worker process or in-process): ``(ok, result or error)`` per member."""
     if threads:
@@ -125,6 +133,8 @@ class PopulationLauncher(Launcher):
             print(f"population launcher: split into {len(groups)} processes of "
                   f"{', '.join(str(len(g)) for g in groups)} member(s) (split_to_fill)")
         parallel = max(1, min(self.n_jobs, len(groups)))
+        if parallel > 1:  # the largest first (stable): processes take the groups in this order
+            groups = largest_first(groups, configs)
         threads = max(1, (os.cpu_count() or 1) // parallel) if parallel > 1 else None
         calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],
                   [prepared[i].return_value for i in group], threads) for group in groups]

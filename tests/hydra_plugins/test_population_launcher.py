@@ -84,12 +84,15 @@ def test_a_sweep_over_methods_plots_grouped_by_method(tmp_path, monkeypatch, cap
     <sweep> --group-by method`` reads each run's method from its log."""
     from aia.apps.log_cli import main as log_main
 
-    returns, out = _multirun(tmp_path, monkeypatch, capsys, "method=dqn,adfq_ts", "seed=0,1")
-    assert "4 jobs in 2 population(s) of 2, 2 member(s)" in out
-    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 4
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, "method=dqn,ddqn,adfq_ts", "seed=0,1")
+    # DQN and Double DQN share a network and a loss: one population of 4
+    assert "6 jobs in 2 population(s) of 4, 2 member(s)" in out
+    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 6
     assert log_main(["plot", str(tmp_path / "sweep"), "--group-by", "method", "--out", str(tmp_path / "m.png")]) == 0
     out = capsys.readouterr().out
-    assert "method=adfq_ts: 2 runs" in out and "method=dqn: 2 runs" in out
+    assert "method=adfq_ts: 2 runs" in out and "method=dqn: 2 runs" in out and "method=ddqn: 2 runs" in out
+    assert [read_run(tmp_path / "sweep" / str(job) / "run.mcap").config_value("algo.name") for job in range(4)] == [
+        "dqn", "dqn", "ddqn", "ddqn"]
 
 
 def test_a_member_with_a_bad_value_fails_alone(tmp_path, monkeypatch, capsys):
@@ -150,3 +153,18 @@ def test_split_to_fill_splits_the_largest_group_until_every_process_has_one(grou
     from hydra_plugins.aia_population_launcher.population_launcher import split_to_fill
 
     assert split_to_fill(groups, processes) == expected
+
+
+def test_largest_first_orders_groups_by_their_work():
+    from omegaconf import OmegaConf
+
+    from hydra_plugins.aia_population_launcher.population_launcher import largest_first
+
+    cfgs = [OmegaConf.create(c) for c in (
+        {"frames": 100, "hidden": [128, 128]},  # work per member 100 x 2 = 200
+        {"frames": 100, "hidden": [128, 128]},
+        {"frames": 100, "hidden": [256, 256, 256]},  # 100 x 4 = 400
+        {"frames": 300, "hidden": [128, 128]},  # 600
+        {"episodes": 5},  # an evaluation: 5
+    )]
+    assert largest_first([[0, 1], [2], [3], [4]], cfgs) == [[3], [0, 1], [2], [4]]  # 600, 400 (tie: kept), 400, 5

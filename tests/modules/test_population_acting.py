@@ -77,6 +77,24 @@ def test_a_member_acts_as_a_population_of_one_with_its_seed_whatever_the_others(
     assert differs > 10  # exploration changed actions away from the greedy ones
 
 
+def test_members_that_sample_and_members_that_are_epsilon_greedy_act_as_their_solo_runs():
+    W = 4
+    # member 0 epsilon-greedy, member 1 sampling, member 2 epsilon-greedy (a sampling member's schedule: unused)
+    mixed = _policy([_adfq(0), _adfq(1), _adfq(2)], W, [5, 6, 7], [False, True, False], eps_init=[0.9, 0.5, 0.3],
+                    eps_end=[0.2, 0.5, 0.0], annealing=[40, 1, 80], warmup=8)
+    solos = [_policy([_adfq(0)], W, [5], False, eps_init=[0.9], eps_end=[0.2], annealing=[40], warmup=8),
+             _policy([_adfq(1)], W, [6], True, warmup=8),
+             _policy([_adfq(2)], W, [7], False, eps_init=[0.3], eps_end=[0.0], annealing=[80], warmup=8)]
+    assert mixed.egreedy_members == [0, 2]
+    for step in range(25):  # 2 warm-up steps, then each member's own exploration
+        obs = _obs(step, 3 * W)
+        action = _act(mixed, obs)
+        for k, solo in enumerate(solos):
+            assert torch.equal(action[k * W:(k + 1) * W], _act(solo, obs[k * W:(k + 1) * W])), (step, k)
+    with pytest.raises(ValueError, match="2 exploration kinds for 3 members"):
+        _policy([_adfq(0), _adfq(1), _adfq(2)], W, [5, 6, 7], [False, True])
+
+
 def test_warmup_frames_are_uniformly_random_then_the_schedule_takes_over():
     network = _mlp(0)
     with torch.no_grad():  # the greedy action is 3 wherever the world is

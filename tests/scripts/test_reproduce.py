@@ -21,31 +21,34 @@ def run_script(cwd: Path, **env: str) -> subprocess.CompletedProcess:
 
 def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajectory(tmp_path):
     result = run_script(
-        tmp_path, SETTINGS="empty1", SEEDS="0", METHODS="adfq_ts", FRAMES="300", ARVI_SEEDS="0", ARVI_EPISODES="1",
-        ARVI_NODES="100", JOBS="1", OUT="out",
+        tmp_path, SETTINGS="empty1 small2", SEEDS="0", METHODS="adfq_egreedy,adfq_ts", FRAMES="300", ARVI_SEEDS="0",
+        ARVI_EPISODES="1", ARVI_NODES="100", JOBS="2", OUT="out",
         TRAIN_OVERRIDES="compile.update=false compile.env=false compile.policy=false",
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    setting = tmp_path / "out" / "empty1"
-    # Run folders are named by what varies (the compile switches are not part of a run's name).
-    assert (setting / "learners" / "method=adfq_ts,seed=0" / "run.mcap").is_file()
-    for baseline in ("arvi", "arvi_min2"):
-        assert (setting / baseline / "seed=0" / "run.mcap").is_file()
+    # one sweep of both settings: per setting, the two ADFQ methods share one population
+    assert "4 jobs in 2 population(s) of 2, 2 member(s)" in result.stdout
+    for name in ("empty1", "small2"):
+        setting = tmp_path / "out" / name
+        # Run folders are named by what varies (the compile switches are not part of a run's name).
+        for method in ("adfq_egreedy", "adfq_ts"):
+            assert (setting / "learners" / f"method={method},seed=0" / "run.mcap").is_file()
+        for baseline in ("arvi", "arvi_min2"):
+            assert (setting / baseline / "seed=0" / "run.mcap").is_file()
+        # The trajectory step reads the checkpoint of a run whose folder name holds '=' and ','.
+        assert (setting / "trajectory" / "run.mcap").is_file()
+    assert (tmp_path / "out" / "sweeps" / "learners" / "multirun.yaml").is_file()
     figures = tmp_path / "out" / "figures"
-    table = (figures / "empty1.md").read_text()
-    assert "| algo=adfq, exploration=thompson | 1 |" in table
+    table = (figures / "small2.md").read_text()
+    assert "| algo=adfq, exploration=thompson | 1 |" in table and "| algo=adfq, exploration=egreedy | 1 |" in table
     assert "training episodes to reach ARVI, min range 2 m" in table
-    # The trajectory step reads the checkpoint of a run whose folder name holds '=' and ','.
-    assert (setting / "trajectory" / "run.mcap").is_file()
     with Image.open(figures / "empty1_trajectory.png") as strip:
         assert strip.size == (5 * 320, 320)  # 5 frames of 320 pixels
-    with Image.open(figures / "empty1.png") as curves:
+    with Image.open(figures / "small2.png") as curves:
         assert min(curves.size) > 200
     # Each phase's wall time, in the order the phases ran.
     phases = [line.split("\t") for line in (tmp_path / "out" / "wall_time.tsv").read_text().splitlines()]
-    assert [name.split(" (")[0] for name, _ in phases] == [
-        "empty1: learners", "empty1: ARVI", "empty1: ARVI, min range 2 m", "empty1: Fig. 2 curves and results table",
-        "empty1: Fig. 3-style trajectory of the first ADFQ-TS seed"]
+    assert [name.split(":")[0] for name, _ in phases] == ["learners", "ARVI", "ARVI, min range 2 m", "figures"]
     assert all(int(seconds) >= 0 for _, seconds in phases)
     # The machine's matmul rate before and after, to read the wall times against.
     speeds = dict(line.split("\t") for line in (tmp_path / "out" / "machine.tsv").read_text().splitlines())

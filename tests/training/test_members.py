@@ -1,4 +1,5 @@
-"""Which runs form one population: they may differ only in MEMBER_KEYS, and the first other difference is named."""
+"""Which runs form one population: they may differ only in MEMBER_KEYS (algo.name only within its family), and the
+first other difference is named."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ def _cfg(**changes: object) -> DictConfig:
     """A small train-like config; ``changes`` by dotted key (``exploration__eps_end`` for ``exploration.eps_end``)."""
     cfg = OmegaConf.create({
         "seed": 0, "lr": 1e-3, "resume": None, "batch_size": 64, "hidden": [32, 32], "frames": "${batch_size}",
+        "method": "dqn", "algo": {"name": "dqn"},
         "exploration": {"name": "egreedy", "eps_init": 1.0, "eps_end": 0.01, "annealing_fraction": 0.1},
         "env": {"name": "empty1", "seed": 0, "sensor": {"range": 10.0}},
     })
@@ -27,9 +29,10 @@ def _cfg(**changes: object) -> DictConfig:
     return cfg
 
 
-MEMBER_CHANGES = {"seed": 4, "lr": 5e-4, "exploration.eps_init": 0.5, "exploration.eps_end": 0.1,
-                  "exploration.annealing_fraction": 0.3, "resume": "run/last.pt"}
-SHARED_CHANGES = {"batch_size": 32, "hidden": [32, 64], "exploration.name": "thompson", "env.seed": 4,
+MEMBER_CHANGES = {"seed": 4, "lr": 5e-4, "method": "ddqn", "algo.name": "ddqn", "exploration.name": "thompson",
+                  "exploration.eps_init": 0.5, "exploration.eps_end": 0.1, "exploration.annealing_fraction": 0.3,
+                  "resume": "run/last.pt"}
+SHARED_CHANGES = {"batch_size": 32, "hidden": [32, 64], "algo.name": "adfq", "env.seed": 4,
                   "env.sensor.range": 12.0, "env.extra": 1}
 
 
@@ -69,13 +72,17 @@ def test_first_difference_names_the_key_and_both_values():
     # alphabetically first of several differences; a key only one side has meets None
     assert first_difference(_cfg(batch_size=32, hidden=[1]), _cfg()) == ("batch_size", 32, 64)
     assert first_difference(_cfg(), _cfg(**{"env.extra": 1})) == ("env.extra", None, 1)
+    # a key of a family: the members' own values, not their families
+    assert first_difference(_cfg(**{"algo.name": "ddqn"}), _cfg(**{"algo.name": "adfq"})) == ("algo.name", "ddqn",
+                                                                                                "adfq")
 
 
 def test_check_population_message():
     check_population([_cfg(), _cfg(seed=1, lr=0.1), _cfg(**MEMBER_CHANGES)])
     check_population([_cfg()])
     message = (r"members 0 and 2 differ in env.name \('empty1' vs 'small2'\); a population may differ only in "
-               r"seed, lr, exploration.eps_init, exploration.eps_end, exploration.annealing_fraction, resume$")
+               r"seed, lr, method, algo.name, exploration.name, exploration.eps_init, exploration.eps_end, "
+               r"exploration.annealing_fraction, resume \(algo.name only between dqn and ddqn\)$")
     with pytest.raises(PopulationError, match=message):
         check_population([_cfg(), _cfg(seed=1), _cfg(**{"env.name": "small2"})])
     with pytest.raises(PopulationError, match="at least one member"):

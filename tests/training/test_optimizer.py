@@ -28,7 +28,7 @@ def _setup(algo: str, seeds: tuple[int, ...], lrs: tuple[float, ...] | None = No
     env = make_env("empty1", batch_size=16, seed=0)
     rollout = env.rollout(3)  # random actions
     network = make_stacked_network(cfgs, env.observation_spec["observation"].shape[-1], env.action_spec.n)
-    loss = make_loss(cfgs[0], make_qvalue_actor(network, env.action_spec, adfq=algo == "adfq"))
+    loss = make_loss(cfgs, make_qvalue_actor(network, env.action_spec, adfq=algo == "adfq"))
     params = list(loss.value_network_params.values(True, True))
     optimizer = StackedAdam(params, list(lrs or [cfgs[0].lr] * len(seeds)))
     target_updater = HardUpdate(loss, value_network_update_interval=2)

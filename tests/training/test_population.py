@@ -39,16 +39,20 @@ def _online(run_dir) -> dict[str, torch.Tensor]:
     return torch.load(run_dir / "checkpoints" / "last.pt", weights_only=False)["online"]
 
 
-@pytest.mark.parametrize("algo, exploration", [("dqn", "egreedy"), ("adfq", "thompson")])
-def test_a_member_is_the_solo_run_with_its_seed(tmp_path, monkeypatch, algo, exploration):
+@pytest.mark.parametrize("method, neighbours", [
+    ("dqn", "dqn"), ("adfq_ts", "adfq_ts"),
+    ("ddqn", "dqn"),  # a Double DQN member among DQN members (one program, memberwise targets)
+    ("adfq_ts", "adfq_egreedy"),  # a Thompson-sampling member among epsilon-greedy ones
+])
+def test_a_member_is_the_solo_run_with_its_seed(tmp_path, monkeypatch, method, neighbours):
     # 199 frames: the first 100 updates (from frame 100); evaluations every 40-frame episode
-    common = (f"algo={algo}", f"exploration={exploration}", "frames=199", *SMALL, "logger.record_every_evaluations=0")
+    common = ("frames=199", *SMALL, "logger.record_every_evaluations=0")
     losses = _recording_losses(monkeypatch)
-    solo = train(_config(*common, "seed=7"), tmp_path / "solo")
+    solo = train(_config(*common, f"method={method}", "seed=7"), tmp_path / "solo")
     solo_losses = torch.stack(losses)[:, 0]
     losses.clear()
-    members = train_population([_config(*common, f"seed={s}") for s in (3, 7, 11)],
-                               [tmp_path / f"m{s}" for s in (3, 7, 11)])
+    members = train_population([_config(*common, f"method={method if s == 7 else neighbours}", f"seed={s}")
+                                for s in (3, 7, 11)], [tmp_path / f"m{s}" for s in (3, 7, 11)])
     member_losses = torch.stack(losses)[:, 1]
     assert len(solo_losses) == 100 and solo.updates == 100
     # (a) evaluations before the first update (frames 40 and 80) are the solo run's, exactly
