@@ -20,6 +20,8 @@ MEMBER_KEYS = ("seed", "lr", "method", "algo.name", "exploration.name", "explora
 # Member keys whose values fall into families: members may differ in such a key only within one family (a value
 # not listed is a family of its own).
 FAMILIES: dict[str, dict[object, str]] = {"algo.name": {"dqn": "dqn", "ddqn": "dqn"}}
+# An ADFQ member-frame's cost relative to a DQN one's, for population_work's order.
+ADFQ_WORK = 1.2
 
 
 class PopulationError(ValueError):
@@ -84,10 +86,11 @@ def check_population(cfgs: Sequence[DictConfig]) -> None:
 
 def population_work(cfgs: Sequence[DictConfig]) -> float:
     """A rough relative cost of running ``cfgs`` as one population, to start the largest first: members x frames
-    (an evaluation: episodes) x (1 + the hidden layers' total width / 256). Fitted to nothing but the order: a
-    population of 3 x 256 networks costs about 1.7x one of 3 x 128 per member-frame on the 2-core CPU
-    (collection, evaluation and update, 2026-12-03 protocol run)."""
+    (an evaluation: episodes) x (1 + the hidden layers' total width / 256), x 1.2 for ADFQ. Fitted to the
+    protocol's populations of 10 on the 2-core CPU (2026-12-03, bfloat16 inner layers): per member-frame a 3 x 256
+    population took 1.6-1.7x a 3 x 128 one, an ADFQ population 1.14-1.20x a DQN + Double DQN one."""
     first = cfgs[0]
     length = first.get("frames") or first.get("episodes") or 1
     width = sum(first.get("hidden") or ())
-    return len(cfgs) * float(length) * (1.0 + width / 256)
+    algo_factor = ADFQ_WORK if OmegaConf.select(first, "algo.name") == "adfq" else 1.0
+    return len(cfgs) * float(length) * (1.0 + width / 256) * algo_factor

@@ -161,10 +161,12 @@ def test_largest_first_orders_groups_by_their_work():
     from hydra_plugins.aia_population_launcher.population_launcher import largest_first
 
     cfgs = [OmegaConf.create(c) for c in (
-        {"frames": 100, "hidden": [128, 128]},  # work per member 100 x 2 = 200
-        {"frames": 100, "hidden": [128, 128]},
-        {"frames": 100, "hidden": [256, 256, 256]},  # 100 x 4 = 400
-        {"frames": 300, "hidden": [128, 128]},  # 600
+        {"frames": 100, "hidden": [128, 128], "algo": {"name": "dqn"}},  # work per member 100 x 2 = 200
+        {"frames": 100, "hidden": [128, 128], "algo": {"name": "dqn"}},
+        {"frames": 100, "hidden": [256, 256, 256], "algo": {"name": "dqn"}},  # 100 x 4 = 400
+        {"frames": 300, "hidden": [128, 128], "algo": {"name": "ddqn"}},  # 600
         {"episodes": 5},  # an evaluation: 5
+        {"frames": 100, "hidden": [256, 256, 256], "algo": {"name": "adfq"}},  # 400 x 1.2 = 480
     )]
-    assert largest_first([[0, 1], [2], [3], [4]], cfgs) == [[3], [0, 1], [2], [4]]  # 600, 400 (tie: kept), 400, 5
+    # 600, 480, 400 (a tie: kept in order), 400, 5
+    assert largest_first([[0, 1], [2], [3], [4], [5]], cfgs) == [[3], [5], [0, 1], [2], [4]]
