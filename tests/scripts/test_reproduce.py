@@ -22,7 +22,7 @@ def run_script(cwd: Path, **env: str) -> subprocess.CompletedProcess:
 def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajectory(tmp_path):
     result = run_script(
         tmp_path, SETTINGS="empty1 small2", SEEDS="0", METHODS="adfq_egreedy,adfq_ts", FRAMES="300", ARVI_SEEDS="0",
-        ARVI_EPISODES="1", ARVI_NODES="100", JOBS="2", OUT="out",
+        ARVI_EPISODES="1", ARVI_NODES="100", ARVI_MIN_RANGES="2", JOBS="2", OUT="out",
         TRAIN_OVERRIDES="compile.update=false compile.env=false compile.policy=false",
     )
     assert result.returncode == 0, result.stderr[-3000:]
@@ -33,8 +33,8 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
         # Run folders are named by what varies (the compile switches are not part of a run's name).
         for method in ("adfq_egreedy", "adfq_ts"):
             assert (setting / "learners" / f"method={method},seed=0" / "run.mcap").is_file()
-        for baseline in ("arvi", "arvi_min2"):
-            assert (setting / baseline / "seed=0" / "run.mcap").is_file()
+        assert (setting / "arvi_min2" / "seed=0" / "run.mcap").is_file()
+        assert not (setting / "arvi").exists()  # ARVI_MIN_RANGES="2": only the 2 m baseline
         # The trajectory step reads the checkpoint of a run whose folder name holds '=' and ','.
         assert (setting / "trajectory" / "run.mcap").is_file()
     assert (tmp_path / "out" / "sweeps" / "learners" / "multirun.yaml").is_file()
@@ -48,7 +48,7 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
         assert min(curves.size) > 200
     # Each phase's wall time, in the order the phases ran.
     phases = [line.split("\t") for line in (tmp_path / "out" / "wall_time.tsv").read_text().splitlines()]
-    assert [name.split(":")[0] for name, _ in phases] == ["learners", "ARVI", "ARVI, min range 2 m", "figures"]
+    assert [name.split(":")[0] for name, _ in phases] == ["learners", "ARVI, min range 2 m", "figures"]
     assert all(int(seconds) >= 0 for _, seconds in phases)
     # The machine's matmul rate before and after, to read the wall times against.
     speeds = dict(line.split("\t") for line in (tmp_path / "out" / "machine.tsv").read_text().splitlines())
