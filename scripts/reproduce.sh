@@ -52,7 +52,6 @@ else
   # a wall-clock budget is shared by everything planned together: one process per seed
   ARVI_BUDGET_AND_LAUNCHER=("planner.time_budget=$ARVI_BUDGET" hydra/launcher=local)
 fi
-RUN_NAME='hydra.sweep.subdir=${hydra.job.override_dirname}'
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
 read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
@@ -100,6 +99,11 @@ OUT_ABS=$(cd "$OUT" && pwd)
 # Each sweep keeps its multirun.yaml in $OUT/sweeps/<name>; its runs go to $OUT/<setting>/<name>/<what varies>
 # (an absolute hydra.sweep.subdir: Hydra joins it to the sweep folder as os.path.join does, i.e. it is kept).
 run_dir() { echo "hydra.sweep.subdir=$OUT_ABS/\${hydra:runtime.choices.env}/$1/\${hydra.job.override_dirname}"; }
+# baseline MIN_RANGE: set name (the ARVI runs' folder) and label (their name in figures) of that minimum range
+baseline() {
+  name=arvi; label=ARVI
+  if [[ "$1" != "0" ]]; then name="arvi_min$1"; label="ARVI, min range $1 m"; fi
+}
 
 # One sweep of every setting's learners: DQN with Double DQN and ADFQ-egreedy with ADFQ-TS share a program
 # (aia/training/members.py), so each setting trains two populations of 2 x seeds members; the launcher starts
@@ -111,8 +115,7 @@ aia-train -m hydra/launcher=population "experiment=$EXPERIMENTS" "method=$METHOD
   'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
 ENVS=$(joined "${SETTING_LIST[@]}")
 for min_range in $ARVI_MIN_RANGES; do
-  name=arvi; label=ARVI
-  if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
+  baseline "$min_range"
   phase "$label: $SETTINGS x seeds $ARVI_SEEDS"
   aia-eval -m "hydra.launcher.n_jobs=$JOBS" policy=arvi "env=$ENVS" "seed=$ARVI_SEEDS" \
     "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_AND_LAUNCHER[@]}" \
@@ -125,8 +128,7 @@ done
 figures() {
   local setting=$1 baselines=() min_range name label config run
   for min_range in $ARVI_MIN_RANGES; do
-    name=arvi; label=ARVI
-    if [[ "$min_range" != "0" ]]; then name="arvi_min$min_range"; label="ARVI, min range $min_range m"; fi
+    baseline "$min_range"
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
   done
   # shellcheck disable=SC2086  # WHERE holds several words on purpose

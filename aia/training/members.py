@@ -80,8 +80,17 @@ def check_population(cfgs: Sequence[DictConfig]) -> None:
         if difference is not None:
             key, first, other = difference
             raise PopulationError(f"members 0 and {index} differ in {key} ({first!r} vs {other!r}); a population "
-                                  f"may differ only in {', '.join(MEMBER_KEYS)} (algo.name only between dqn and "
-                                  "ddqn)")
+                                  f"may differ only in {', '.join(MEMBER_KEYS)} ({_families_note()})")
+
+
+def _families_note() -> str:
+    """``FAMILIES`` in words: "algo.name only between dqn and ddqn"."""
+    notes = []
+    for key, families in FAMILIES.items():
+        for family in dict.fromkeys(families.values()):
+            members = [value for value, f in families.items() if f == family]
+            notes.append(f"{key} only between {', '.join(map(str, members[:-1]))} and {members[-1]}")
+    return "; ".join(notes)
 
 
 def population_work(cfgs: Sequence[DictConfig]) -> float:
