@@ -23,33 +23,37 @@ class MemberwiseDoubleTD0(TD0Estimator):
     """TD(0) targets of a ``[P, B]`` batch for ``loss`` (a ``DQNLoss`` with ``double_dqn=False`` on stacked
     networks) where member ``k`` uses Double DQN's next action if ``double[k]``, DQN's otherwise.
 
-    Costs one more forward of the online network on the next observations than plain DQN (what Double DQN
-    costs anyway). Use :func:`use_memberwise_double` to install it.
+    Costs one more forward of the online network on the Double DQN members' next observations (what Double DQN
+    costs anyway); the DQN members skip it. Use :func:`use_memberwise_double` to install it.
     """
 
     def __init__(self, loss: DQNLoss, double: Sequence[bool], gamma: float) -> None:
         super().__init__(gamma=gamma, value_network=loss.value_network)
         # a tuple: the online parameters are the loss's, not a submodule of this estimator
         self._online = (loss.value_network_params,)
-        self.register_buffer("double_members", torch.tensor([bool(d) for d in double]))
+        # the Double DQN members' indices: only their slices of the online network see the next observations
+        self.register_buffer("double_members", torch.tensor([k for k, d in enumerate(double) if d], dtype=torch.long))
         self._action_key = loss.tensor_keys.action
         self._action_value_key = loss.tensor_keys.action_value
 
     def _next_value(self, tensordict: TensorDictBase, target_params, kwargs) -> Tensor:
         """``[P, B, 1]``: the target network's value of each member's next action."""
         step_td = step_mdp(tensordict, keep_other=False)
-        online_td = step_td.clone(False)
+        members = self.double_members
+        online_td = step_td[members]  # a copy, taken before the target network writes into step_td
         with target_params.to_module(self.value_network, preserve_module_state=False):
             self.value_network(step_td)
-        with self._online[0].data.to_module(self.value_network, preserve_module_state=False):
+        online_params = self._online[0].data.apply(lambda p: p.index_select(0, members))
+        with online_params.to_module(self.value_network, preserve_module_state=False):
             self.value_network(online_td)
         target_values = step_td.get(self._action_value_key)
         own = step_td.get(self.tensor_keys.value)  # DQN: the target network's chosen (greedy) action's value
         online_action = online_td.get(self._action_key)
         if online_action.ndim != target_values.ndim:
             online_action = online_action.unsqueeze(-1)
-        double = torch.gather(target_values, -1, online_action)  # Double DQN: the online network's action
-        return torch.where(self.double_members.reshape(-1, *(1,) * (own.ndim - 1)), double, own)
+        # Double DQN: the target network's value of the online network's action
+        double = torch.gather(target_values.index_select(0, members), -1, online_action)
+        return own.index_copy(0, members, double)
 
 
 def use_memberwise_double(loss: DQNLoss, double: Sequence[bool], gamma: float) -> DQNLoss:

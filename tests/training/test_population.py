@@ -42,6 +42,7 @@ def _online(run_dir) -> dict[str, torch.Tensor]:
 @pytest.mark.parametrize("method, neighbours", [
     ("dqn", "dqn"), ("adfq_ts", "adfq_ts"),
     ("ddqn", "dqn"),  # a Double DQN member among DQN members (one program, memberwise targets)
+    ("dqn", "ddqn"),  # and a DQN member among Double DQN members (no online forward of its own on s')
     ("adfq_ts", "adfq_egreedy"),  # a Thompson-sampling member among epsilon-greedy ones
 ])
 def test_a_member_is_the_solo_run_with_its_seed(tmp_path, monkeypatch, method, neighbours):
