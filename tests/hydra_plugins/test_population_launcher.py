@@ -9,6 +9,7 @@ import sys
 
 import pytest
 import yaml
+from hydra._internal.config_loader_impl import ConfigLoaderImpl
 from hydra.core.plugins import Plugins
 from hydra.core.utils import JobStatus
 
@@ -56,7 +57,16 @@ def _multirun(tmp_path, monkeypatch, capsys, *overrides: str, fails: bool = Fals
 
 def test_one_sweep_trains_a_2_and_a_3_member_population(tmp_path, monkeypatch, capsys):
     jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [16]), c=(2, [24]), d=(3, [24]), e=(4, [24]))
+    composed = []
+    compose = ConfigLoaderImpl.load_sweep_config
+
+    def counting(self, master_config, sweep_overrides):
+        composed.append(list(sweep_overrides))
+        return compose(self, master_config, sweep_overrides)
+
+    monkeypatch.setattr(ConfigLoaderImpl, "load_sweep_config", counting)
     returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs)
+    assert len(composed) == 5  # each job's config composed once (the sweeper's check; the launcher reuses it)
     assert "5 jobs in 2 population(s) of 2, 3 member(s)" in out
     assert "as a population of 2, seeds [0, 1]" in out and "as a population of 3, seeds [2, 3, 4]" in out
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 5
