@@ -25,11 +25,18 @@
 ``--inner-dtypes float32,bfloat16`` adds rows with the hidden-to-hidden matmuls in bfloat16 (``inner_dtype``,
 ``conf/train.yaml``), each against P = 1 of its own dtype; ``--algos adfq`` keeps one learner.
 
+``--repeats N`` measures every population size N times, round by round (each round's sizes one after another,
+so that they meet the same VM): each row gives the median rate and the range, and the ratio to the P = 1 run of
+the same round (median and range). A P = 1 job of a few hundred frames lasts seconds and swings with the VM's
+speed (2026-12-03: 163-489 member-frames/s for the same DQN row in three runs), so a ratio from one round says
+little.
+
 Prints a table and writes JSON (default ``benchmarks/results/population_<device>.json``).
 
     python benchmarks/population.py
     python benchmarks/population.py --members 1,5,20 --modes eager --baseline 54a9a5a
     python benchmarks/population.py --algos adfq --modes compiled --members 1,5 --inner-dtypes float32,bfloat16
+    python benchmarks/population.py --algos dqn --modes compiled --members 1,20 --repeats 3 --frames 600
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ import itertools
 import json
 import os
 import platform
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -117,6 +125,19 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
             "ms_per_step_by_phase": split}
 
 
+def _median_run(runs: list[dict], solo_runs: list[dict | None]) -> dict:
+    """The run of median member-frames/s among ``runs`` (one per round; of an even number, the upper), with
+    every round's rate (``member_frames_per_s_runs``), every round's ratio to its own P = 1 run
+    (``speedup_over_p1_runs``, empty without P = 1 runs) and their median (``speedup_over_p1``)."""
+    rates = [run["member_frames_per_s"] for run in runs]
+    row = dict(sorted(runs, key=lambda run: run["member_frames_per_s"])[len(runs) // 2])
+    ratios = [rate / solo["member_frames_per_s"] for rate, solo in zip(rates, solo_runs, strict=True) if solo]
+    row["member_frames_per_s_runs"] = rates
+    row["speedup_over_p1_runs"] = ratios
+    row["speedup_over_p1"] = statistics.median(ratios) if ratios else None
+    return row
+
+
 def measure_vmap_update(members: int, repeats: int = 30) -> dict:
     """ms of one forward and backward of ``members`` 3 x 128 DQN losses: ``torch.vmap`` over ``DQNLoss`` with
     stacked parameters against the stacked network inside one ``DQNLoss`` (``reduction="none"``)."""
@@ -186,6 +207,9 @@ def main() -> None:
                         help="comma-separated inner_dtype values to compare: float32, bfloat16")
     parser.add_argument("--warmup", type=int, default=200, help="warm-up frames of each job")
     parser.add_argument("--frames", type=int, default=300, help="updating frames of each job")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="rounds of every population size; rows give the median and the range, and the ratio "
+                             "to P = 1 of the same round")
     parser.add_argument("--baseline", default=None, help="git commit of the solo loop to compare P = 1 with")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -201,24 +225,29 @@ def main() -> None:
 
     gflops_before = sgemm_gflops()
     rows = []
-    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'inner':<10}{'P':>4}{'member-frames/s':>17}{'x P=1':>7}"
-          f"{'with eval':>11}{'% of matmul peak':>18}  ms per step by phase")
+    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'inner':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
+          f"{'x P=1 (range)':<16}{'with eval':>11}{'% of matmul peak':>18}  ms per step by phase")
     for algo, mode, dtype in itertools.product(algos, modes, dtypes):
-        solo_rate = None
+        # rounds of every size, one after another, so that the sizes of one round meet the same VM
+        rounds = [{members: measure_population(algo, members, mode == "compiled", args.warmup, args.frames,
+                                               args.device, dtype) for members in sizes}
+                  for _ in range(args.repeats)]
         for members in sizes:
-            row = measure_population(algo, members, mode == "compiled", args.warmup, args.frames, args.device,
-                                     dtype)
-            solo_rate = row["member_frames_per_s"] if members == 1 else solo_rate
-            row["speedup_over_p1"] = row["member_frames_per_s"] / solo_rate if solo_rate else None
+            row = _median_run([r[members] for r in rounds], [r.get(1) for r in rounds])
             row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(algo) / (
                 gflops_before * 1e9)
             rows.append(row)
-            speedup = f"{row['speedup_over_p1']:.1f}" if row["speedup_over_p1"] else "-"
+            rates = row["member_frames_per_s_runs"]
+            spread = f" ({min(rates):,.0f}-{max(rates):,.0f})" if len(rates) > 1 else ""
+            ratios = row["speedup_over_p1_runs"]
+            speedup = f"{row['speedup_over_p1']:.1f}" if ratios else "-"
+            if len(ratios) > 1:
+                speedup += f" ({min(ratios):.1f}-{max(ratios):.1f})"
             phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
                                sorted(row["ms_per_step_by_phase"].items(), key=lambda item: -item[1]))
             print(f"{algo:<6}{row['network']:<13}{mode:<10}{dtype:<10}{members:>4}"
-                  f"{row['member_frames_per_s']:>17,.0f}"
-                  f"{speedup:>7}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
+                  f"{row['member_frames_per_s']:>17,.0f}{spread:<16}"
+                  f"{speedup:<16}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
                   f"{100 * row['share_of_sgemm_peak']:>17.1f}%  {phases}", flush=True)
     print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
           f"{'stacked network ms':>20}")
