@@ -230,6 +230,9 @@ class ADFQLoss(LossModule):
             done: done key under ``"next"`` (read for in_keys only). Defaults to ``"done"``.
             terminated: terminal key under ``"next"``, the posterior's ``done``. Defaults to ``"terminated"``.
             priority_weight: importance weights of a prioritized sampler. Defaults to ``"priority_weight"``.
+            target_mean: a precomputed posterior mean (:meth:`targets`), used instead of computing it.
+                Defaults to ``"target_mean"``.
+            target_var: its posterior variance. Defaults to ``"target_var"``.
         """
 
         action_value: NestedKey = "action_value"
@@ -240,6 +243,8 @@ class ADFQLoss(LossModule):
         done: NestedKey = "done"
         terminated: NestedKey = "terminated"
         priority_weight: NestedKey = "priority_weight"
+        target_mean: NestedKey = "target_mean"
+        target_var: NestedKey = "target_var"
 
     tensor_keys: _AcceptedKeys
     default_keys = _AcceptedKeys
@@ -339,12 +344,17 @@ class ADFQLoss(LossModule):
         """A ``[..., 1]`` (or ``[...]``) per-transition entry as ``[...]`` (the batch shape)."""
         return x.reshape(batch_size)
 
-    def target_posterior(self, tensordict: TensorDictBase) -> tuple[Tensor, Tensor]:
+    def target_posterior(self, tensordict: TensorDictBase, target_params: TensorDictBase | None = None
+                         ) -> tuple[Tensor, Tensor]:
         """The ADF posterior ``(post_mean, post_var)`` (each the batch shape) that ``forward`` regresses onto.
 
         Computed without gradients from the target parameters at ``s`` (the taken action's belief) and ``s'``
         (every next action's belief), sds clipped to ``[sqrt(var_min), sd_max]``, ``done`` = ``terminated``.
+        ``target_params`` stands in for ``target_value_network_params`` (e.g. the same values cast to the dtypes
+        their layers multiply in, once for many calls).
         """
+        if target_params is None:
+            target_params = self.target_value_network_params
         keys = self.tensor_keys
         batch_size = tensordict.batch_size
         in_keys = self.value_network.in_keys
@@ -352,7 +362,7 @@ class ADFQLoss(LossModule):
             # s and s' side by side in a last batch dim (a leading dim would break a member-stacked network)
             both = torch.stack([tensordict.select(*in_keys), tensordict.get("next").select(*in_keys)],
                                dim=tensordict.batch_dims)
-            with self.target_value_network_params.to_module(self.value_network, preserve_module_state=False):
+            with target_params.to_module(self.value_network, preserve_module_state=False):
                 both = self.value_network(both)
             means = both.get(keys.action_value)
             log_sds = self._clip_log_sd(both.get(keys.action_log_sd))
@@ -376,20 +386,34 @@ class ADFQLoss(LossModule):
                 reward_var=self.reward_var,
             )
 
+    def targets(self, tensordict: TensorDictBase, target_params: TensorDictBase | None = None) -> TensorDictBase:
+        """:meth:`target_posterior` as the ``target_mean`` and ``target_var`` entries that ``forward`` takes
+        instead of computing them: a transition's target depends only on it and the target parameters, so
+        between two target updates it can be computed once per stored transition (:class:`~aia.training.
+        target_cache.TargetCache`) rather than once per sampled one."""
+        post_mean, post_var = self.target_posterior(tensordict, target_params)
+        keys = self.tensor_keys
+        return TensorDict({keys.target_mean: post_mean, keys.target_var: post_var}, batch_size=tensordict.batch_size)
+
     # --------------------------------------------------------------- forward
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """The ADFQ loss of a batch of transitions.
 
         Args:
             tensordict: transitions with the value network's in_keys at the root and under ``"next"``, the
-                ``action``, and ``("next", reward | terminated | done)`` shaped ``[..., 1]`` (or ``[...]``).
+                ``action``, and ``("next", reward | terminated | done)`` shaped ``[..., 1]`` (or ``[...]``);
+                with ``target_mean`` and ``target_var`` (:meth:`targets`), those are the targets and the
+                target network is not run.
 
         Returns:
             ``TensorDict(loss=..., td_error=..., sd_error=..., posterior_sd=...)`` (scalars; only ``loss``
             carries gradients, to the online parameters).
         """
         keys = self.tensor_keys
-        post_mean, post_var = self.target_posterior(tensordict)
+        if keys.target_mean in tensordict.keys():  # noqa: SIM118 (TensorDict has no __contains__); :meth:`targets`
+            post_mean, post_var = tensordict.get(keys.target_mean), tensordict.get(keys.target_var)
+        else:
+            post_mean, post_var = self.target_posterior(tensordict)
         td_online = tensordict.select(*self.value_network.in_keys)
         with self.value_network_params.to_module(self.value_network, preserve_module_state=False):
             td_online = self.value_network(td_online)

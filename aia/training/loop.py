@@ -10,7 +10,8 @@ program, and a solo run is a population of one: the same loop, not a second copy
 * replays from its own rows of one storage (:class:`~aia.training.replay.MemberReplay`);
 * learns with its own learning rate, gradient-norm clip and Adam moments (:mod:`aia.training.optimizer`);
   the loss is TorchRL's ``DQNLoss`` (DQN, Double DQN) or :class:`~aia.losses.ADFQLoss`, run on ``[P, B]``
-  batches, with a hard target-network copy every ``target_update_interval`` steps;
+  batches, with a hard target-network copy every ``target_update_interval`` steps (ADFQ's targets of the
+  replayed transitions computed once per copy, :class:`~aia.training.target_cache.TargetCache`);
 * is evaluated after every ``eval.every_episodes`` training episodes (``eval.episodes`` episodes at epsilon
   ``eval.epsilon``, scored as SPEC 9), ``eval.per_rollout`` evaluations of all members per rollout
   (:class:`~aia.evaluator.Evaluator`);
@@ -68,6 +69,7 @@ from aia.training.optimizer import StackedAdam, Updater
 from aia.training.replay import MemberReplay
 from aia.training.resuming import load_resumable, resume_path
 from aia.training.stopping import StopOnSignals
+from aia.training.target_cache import TargetCache
 from aia.validation import validate_train_config
 
 
@@ -149,9 +151,12 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     loss = make_loss(cfgs, actor)
     target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
     optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [c.lr for c in cfgs])
-    # cfg.compile.update would be DictConfig's dict method update (always true), not the switch
-    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=cfg.compile["update"])
     replay = MemberReplay(cfg.buffer_size, cfg.batch_size, seeds, device=cfg.device)
+    # cfg.compile.update would be DictConfig's dict method update (always true), not the switch
+    compile_update = cfg.compile["update"]
+    targets = TargetCache(loss, network, replay, compile=compile_update) if cfg.algo.name == "adfq" else None
+    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=compile_update,
+                     on_target_copy=targets.invalidate if targets else None)
     base_env = env.base_env
     world_episodes = torch.zeros(P * W, dtype=torch.int64)
     parts = PopulationParts(loss.value_network_params, loss.target_value_network_params, optimizer, policy, replay,
@@ -207,7 +212,11 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
             # only what the loop reads: the loss's keys (a cheaper extend and sample) and the score
             batch = batch.select(*in_keys, _SCORE_KEY).reshape(P, W)
             with timer("buffer"):
-                replay.extend(batch.select(*in_keys).transpose(0, 1))
+                transitions = batch.select(*in_keys).transpose(0, 1)
+                rows = replay.extend(transitions)
+            if targets is not None and targets.fresh:
+                with timer("first_update" if targets.first_calls else "targets"):
+                    targets.record(transitions, rows)
             shared.frames += W
             running_score += -batch.get(_SCORE_KEY).mean(-1)
             episode_step += 1
@@ -224,6 +233,9 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
                 updates_owed += updates_per_frame * W
                 while updates_owed >= 1:
                     updates_owed -= 1
+                    if targets is not None and not targets.fresh:
+                        with timer("first_update" if targets.first_calls else "targets"):
+                            targets.refresh()
                     with timer("buffer"):
                         sample = replay.sample()
                     # the first step of a job compiles (compile.update=true): timed apart from the steady steps

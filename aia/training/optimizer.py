@@ -76,15 +76,16 @@ class Updater:
     fused, in one graph for one member and two for more; the first call compiles;
     :func:`aia.compiling.compiled_update`: the loss module's settings must not change after that call); eager
     and compiled agree up to float rounding. The hard target-network copy (``target_updater.step()``) stays
-    outside the graphs. If inductor fails to compile the step, the
+    outside the graphs; ``on_target_copy`` is called after each copy. If inductor fails to compile the step, the
     updater says so in one line and runs it eager from then on: a compiler bug must not end a run that eager
     mode trains correctly (torch 2.13's CPU backend crashed on the one-graph step of two or more members,
     pytorch/pytorch#196570, until it was split in two graphs).
     """
 
     def __init__(self, loss: LossModule, optimizer: StackedAdam, target_updater: HardUpdate,
-                 grad_clip: float, compile: bool = False) -> None:
+                 grad_clip: float, compile: bool = False, on_target_copy: Callable[[], None] | None = None) -> None:
         self.loss = loss
+        self.on_target_copy = on_target_copy
         self.optimizer = optimizer
         self.target_updater = target_updater
         self.grad_clip = float(grad_clip)
@@ -117,7 +118,11 @@ class Updater:
                   "it runs eager", file=sys.stderr)
             self._step = update_step
             losses = self._step(*args)
+        # HardUpdate copies at the step whose counter has reached the interval (then restarts the count)
+        copies = self.target_updater.counter == self.target_updater.value_network_update_interval
         self.target_updater.step()
+        if copies and self.on_target_copy is not None:
+            self.on_target_copy()
         return losses
 
 

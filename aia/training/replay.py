@@ -61,8 +61,15 @@ class MemberReplay:
         """Batches sampled so far (the members sample in lockstep)."""
         return self._uniforms.counter
 
-    def extend(self, transitions: TensorDictBase) -> None:
-        """Append ``[T, P]`` transitions (the oldest rows are overwritten once the buffer is full)."""
+    @property
+    def rows(self) -> TensorDictBase | None:
+        """The storage, ``[capacity, P]`` (``None`` before the first write); rows past ``len(self)`` hold copies
+        of the first transition written."""
+        return self._rows
+
+    def extend(self, transitions: TensorDictBase) -> torch.Tensor:
+        """Append ``[T, P]`` transitions (the oldest rows are overwritten once the buffer is full); returns the
+        ``T`` rows written."""
         T = transitions.batch_size[0]
         if self._rows is None:
             self._allocate(transitions[0])
@@ -71,6 +78,20 @@ class MemberReplay:
             leaf.index_copy_(0, rows, transitions.get(key))
         self.cursor = (self.cursor + T) % self.capacity
         self.size = min(self.size + T, self.capacity)
+        return rows
+
+    def attach(self, columns: TensorDictBase) -> None:
+        """Keep ``columns`` (``[capacity, P]``, e.g. values derived from each row, :class:`~aia.training.
+        target_cache.TargetCache`) beside the transitions: :meth:`sample` returns their entries of the sampled
+        rows with the transitions'. Their owner writes them; :meth:`extend` and checkpoints do not."""
+        if self._rows is None or columns.batch_size != self._rows.batch_size:
+            raise ValueError(f"columns shaped {tuple(columns.batch_size)} for a storage of "
+                             f"{None if self._rows is None else tuple(self._rows.batch_size)}")
+        for key, column in columns.items(include_nested=True, leaves_only=True):
+            sampled = column.new_empty((self.num_members * self.batch_size, *column.shape[2:]))
+            self._batch.set(key, sampled.unflatten(0, (self.num_members, self.batch_size)))
+            rows = column.view(self.capacity * self.num_members, *column.shape[2:])  # a view: writes reach it
+            self._flat_leaves.append((rows, sampled))
 
     def sample(self) -> TensorDictBase:
         """``[P, batch_size]`` transitions, member ``k``'s drawn uniformly (with replacement) from its rows."""

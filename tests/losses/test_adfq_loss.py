@@ -135,6 +135,22 @@ def test_target_equals_posterior_of_target_network_and_loss_form(batch):
     torch.testing.assert_close(td_in["td_error"], priority.detach()[:, None])
 
 
+def test_precomputed_targets_stand_in_for_the_computed_ones(batch):
+    net, actor, td = batch
+    loss, _ = _make_loss(actor)
+    targets = loss.targets(td)
+    post_mean, post_var = loss.target_posterior(td)
+    assert torch.equal(targets["target_mean"], post_mean) and torch.equal(targets["target_var"], post_var)
+    computed, given = loss(td.clone()), loss(td.clone().update(targets))
+    assert all(torch.equal(computed[key], given[key]) for key in computed.keys())  # noqa: SIM118
+    # the given targets are the ones used: other targets, another loss
+    shifted = loss(td.clone().update(targets.apply(lambda t: t + 1.0)))
+    assert not torch.equal(shifted["loss"], computed["loss"])
+    # and other target parameters (e.g. cast once) are the ones the computation uses
+    halved = loss.target_value_network_params.data.apply(lambda p: 0.5 * p)
+    assert not torch.equal(loss.targets(td, halved)["target_mean"], targets["target_mean"])
+
+
 def test_truncation_is_not_terminal(batch):
     net, actor, td = batch
     td = td.clone()

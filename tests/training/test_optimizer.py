@@ -114,6 +114,18 @@ def test_an_update_step_inductor_cannot_compile_runs_eager_and_says_so(monkeypat
                      "eager"]
 
 
+def test_on_target_copy_is_called_after_each_hard_target_copy():
+    loss, optimizer, target_updater, batches, clip = _setup("adfq", (0, 1))  # a copy every 3rd update
+    copied = []
+    update = Updater(loss, optimizer, target_updater, clip, on_target_copy=lambda: copied.append(True))
+    for i in range(9):
+        before = loss.target_value_network_params.clone()
+        update(batches[i % 3].clone())
+        changed = not all(torch.equal(a, b) for a, b in zip(before.values(True, True),
+                                                            loss.target_value_network_params.values(True, True)))
+        assert (len(copied) == i // 3 + (i % 3 == 2)) and changed == (i % 3 == 2)
+
+
 def test_stacked_adam_needs_one_positive_rate_per_member():
     params = [torch.zeros(2, 3)]
     with pytest.raises(ValueError, match="one learning rate per member"):

@@ -98,3 +98,20 @@ def test_keys_a_loss_writes_into_a_batch_do_not_reach_the_next_batch():
     batch = replay.sample()
     batch["td_error"] = torch.zeros(1, 2)
     assert set(replay.sample().keys()) == {"id", "observation"}
+
+
+def test_attached_columns_are_sampled_with_their_rows_and_kept_out_of_checkpoints():
+    replay = MemberReplay(capacity=6, batch_size=32, seeds=[1, 2])
+    with pytest.raises(ValueError, match="columns shaped"):
+        replay.attach(TensorDict(double=torch.zeros(6, 2), batch_size=[6, 2]))  # nothing stored yet
+    rows = replay.extend(_transitions(0, 4, [0, 1]))
+    assert rows.tolist() == [0, 1, 2, 3]
+    with pytest.raises(ValueError, match=r"columns shaped \(5, 2\)"):
+        replay.attach(TensorDict(double=torch.zeros(5, 2), batch_size=[5, 2]))
+    columns = TensorDict(double=torch.zeros(6, 2, dtype=torch.int64), batch_size=[6, 2])
+    replay.attach(columns)
+    assert replay.extend(_transitions(4, 3, [0, 1])).tolist() == [4, 5, 0]  # wraps around
+    columns["double"].copy_(2 * replay.rows["id"])  # the owner writes its columns (after the rows changed)
+    sample = replay.sample()
+    assert torch.equal(sample["double"], 2 * sample["id"])
+    assert "double" not in replay.member_state(0)["transitions"].keys()  # noqa: SIM118

@@ -1,0 +1,100 @@
+"""TargetCache: the ADFQ targets it keeps per replay row are the loss's own, to the bit, through target copies;
+a run with the cache trains exactly as one that computes every sampled transition's target."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hydra import compose, initialize_config_module
+from torchrl.objectives import HardUpdate
+
+import aia.training.loop as loop
+from aia.envs import make_env
+from aia.modules.q_networks import make_qvalue_actor
+from aia.training import train_population
+from aia.training.components import make_loss, make_stacked_network
+from aia.training.optimizer import StackedAdam, Updater
+from aia.training.replay import MemberReplay
+from aia.training.target_cache import TargetCache
+
+
+def _config(*overrides: str):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        return compose(config_name="train", overrides=list(overrides))
+
+
+def _targets_of(loss, batch) -> tuple[torch.Tensor, torch.Tensor]:
+    """The loss's own targets of a sampled batch (the cached entries left out)."""
+    return loss.target_posterior(batch.exclude(loss.tensor_keys.target_mean, loss.tensor_keys.target_var))
+
+
+@pytest.mark.parametrize("inner_dtype", ["float32", "bfloat16"])
+@pytest.mark.parametrize("compile", [False, True])
+def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(inner_dtype, compile):
+    cfgs = [_config("algo=adfq", "hidden=[32,32]", f"inner_dtype={inner_dtype}", f"seed={s}") for s in (0, 1)]
+    torch.manual_seed(0)  # the rollout's random actions
+    env = make_env("empty1", batch_size=2, seed=0)
+    rollout = env.rollout(40).transpose(0, 1)  # [T, P] transitions, random actions
+    network = make_stacked_network(cfgs, env.observation_spec["observation"].shape[-1], env.action_spec.n)
+    loss = make_loss(cfgs, make_qvalue_actor(network, env.action_spec, adfq=True))
+    replay = MemberReplay(capacity=24, batch_size=16, seeds=[0, 1])
+    cache = TargetCache(loss, network, replay, compile=compile)
+    target_updater = HardUpdate(loss, value_network_update_interval=3)
+    optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [1e-2, 1e-2])
+    update = Updater(loss, optimizer, target_updater, 10.0, on_target_copy=cache.invalidate)
+    transitions = rollout.select(*loss.in_keys)
+    replay.extend(transitions[:10])
+    copies = 0
+    for t in range(10, 40):  # one written transition per step (the buffer wraps at 24), then an update
+        rows = replay.extend(transitions[t:t + 1])
+        cache.record(transitions[t:t + 1], rows)
+        copies += not cache.fresh
+        if not cache.fresh:
+            cache.refresh()
+        batch = replay.sample()
+        mean, var = _targets_of(loss, batch)
+        if compile:  # compiled kernels round otherwise than eager ones (the compiled update's own targets are
+            # the cache's to the bit: test_training_with_the_cache_is_training_without_it_bit_for_bit)
+            torch.testing.assert_close(batch["target_mean"], mean, rtol=1e-6, atol=0)
+            torch.testing.assert_close(batch["target_var"], var, rtol=1e-6, atol=0)
+        else:
+            assert torch.equal(batch["target_mean"], mean) and torch.equal(batch["target_var"], var)
+        update(batch)
+    assert copies == 1 + 29 // 4  # the first refresh, then after every copy (every 4th update)
+
+
+def test_a_stale_cache_records_nothing_and_an_empty_buffer_cannot_refresh():
+    cfgs = [_config("algo=adfq", "hidden=[16]", "seed=0")]
+    env = make_env("empty1", batch_size=1, seed=0)
+    network = make_stacked_network(cfgs, env.observation_spec["observation"].shape[-1], env.action_spec.n)
+    loss = make_loss(cfgs, make_qvalue_actor(network, env.action_spec, adfq=True))
+    replay = MemberReplay(capacity=8, batch_size=4, seeds=[0])
+    cache = TargetCache(loss, network, replay)
+    with pytest.raises(RuntimeError, match="empty"):
+        cache.refresh()
+    transitions = env.rollout(3).select(*loss.in_keys).transpose(0, 1)  # [T, P = 1]
+    cache.record(transitions, replay.extend(transitions))  # stale: computes nothing
+    assert not cache.fresh and "target_mean" not in replay.sample().keys()  # noqa: SIM118
+    cache.refresh()
+    assert cache.fresh and "target_mean" in replay.sample().keys()  # noqa: SIM118
+    cache.invalidate()
+    assert not cache.fresh
+
+
+@pytest.mark.parametrize("method, compile", [("adfq_ts", False), ("adfq_egreedy", True)])
+def test_training_with_the_cache_is_training_without_it_bit_for_bit(tmp_path, monkeypatch, method, compile):
+    overrides = ("frames=260", "env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16",
+                 "hidden=[32,32]", "buffer_size=64", "target_update_interval=20", "logger=none",
+                 f"compile.update={compile}")
+    cfgs = [_config(*overrides, f"method={method}", f"seed={s}") for s in (3, 4)]
+
+    def final_parameters(name: str) -> list[dict[str, torch.Tensor]]:
+        dirs = [tmp_path / name / str(k) for k in range(2)]
+        train_population(cfgs, dirs)
+        return [torch.load(d / "checkpoints" / "last.pt", weights_only=False)["online"] for d in dirs]
+
+    cached = final_parameters("cached")
+    monkeypatch.setattr(loop, "TargetCache", lambda *args, **kwargs: None)  # every sampled target computed
+    computed = final_parameters("computed")
+    for a, b in zip(cached, computed, strict=True):
+        assert a.keys() == b.keys() and all(torch.equal(a[name], b[name]) for name in a)
