@@ -68,6 +68,8 @@ from aia.training.components import make_loss, make_stacked_network
 ROWS = {"dqn": ("paper_empty1", "egreedy", 8, (128, 128, 128)), "adfq": ("paper_small3", "thompson", 20,
                                                                           (256, 256, 256))}
 NUM_ACTIONS, BATCH = 12, 64
+# the paper presets' replay buffer and target period (a copy every 50 updates: HardUpdate copies on the 51st)
+BUFFER_SIZE, TARGET_PERIOD = 1000, 51
 LOOP_SWITCHES = ("update", "env", "policy")
 HERE = Path(__file__).parent
 
@@ -79,14 +81,16 @@ def _config(*overrides: str):
 
 def flops_per_member_frame(algo: str) -> float:
     """Matmul FLOPs of one member-frame: acting on one world, and one update of a batch of 64 (forward of
-    the online network and its backward, twice the forward; the target network's forward on s' and, for
-    ADFQ, on s as well)."""
+    the online network and its backward, twice the forward; the target network's forward on s'). ADFQ's
+    targets come from ``aia.training.target_cache.TargetCache``: the target network on s and s' of the
+    buffer's 1,000 rows once per 51-update target period, and of each written transition (computed among 4):
+    2 x (1,000 / 51 + 4) rows a frame instead of 2 x 64."""
     _, _, obs, hidden = ROWS[algo]
     outputs = 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS
     widths = [obs, *hidden, outputs]
     per_sample = 2 * sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True))
-    passes = 3 + (2 if algo == "adfq" else 1)  # online forward + backward (x2), target forwards
-    return per_sample * (1 + BATCH * passes)
+    target_rows = 2 * (BUFFER_SIZE / TARGET_PERIOD + 4) if algo == "adfq" else BATCH
+    return per_sample * (1 + 3 * BATCH + target_rows)
 
 
 def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,

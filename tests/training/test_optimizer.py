@@ -119,10 +119,10 @@ def test_on_target_copy_is_called_after_each_hard_target_copy():
     copied = []
     update = Updater(loss, optimizer, target_updater, clip, on_target_copy=lambda: copied.append(True))
     for i in range(9):
-        before = loss.target_value_network_params.clone()
+        before = list(loss.target_value_network_params.clone().values(True, True))
         update(batches[i % 3].clone())
-        changed = not all(torch.equal(a, b) for a, b in zip(before.values(True, True),
-                                                            loss.target_value_network_params.values(True, True)))
+        after = loss.target_value_network_params.values(True, True)
+        changed = not all(torch.equal(a, b) for a, b in zip(before, after, strict=True))
         assert (len(copied) == i // 3 + (i % 3 == 2)) and changed == (i % 3 == 2)
 
 
