@@ -7,7 +7,7 @@
    counts the updating frames of every member, from the loop's own phase clocks (``TrainingState.seconds``):
    per step, each phase's time in a job of ``warmup + frames`` frames minus its time in a warm-up-only job
    (compiled, after a first warm-up job that compiles what the later jobs of that size reuse), summed over
-   the training phases (collect, buffer, update, other; the first, compiling, update left out).
+   the training phases (collect, buffer, update, targets, other; the first, compiling, update left out).
    ``member_frames_per_s_with_evaluation`` adds the longer job's evaluation time spread over all its frames
    (evaluations come in lumps: a short job plays a whole evaluation rollout for a point or two, a long run
    ``eval.per_rollout`` points per rollout, so this share depends on the job's length), and
