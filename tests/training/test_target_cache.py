@@ -9,13 +9,14 @@ from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
 import aia.training.loop as loop
+import aia.training.target_cache as target_cache
 from aia.envs import make_env
 from aia.modules.q_networks import make_qvalue_actor
 from aia.training import train_population
 from aia.training.components import make_loss, make_stacked_network
 from aia.training.optimizer import StackedAdam, Updater
 from aia.training.replay import MemberReplay
-from aia.training.target_cache import TargetCache
+from aia.training.target_cache import TargetCache, _chunks
 
 
 def _config(*overrides: str):
@@ -28,8 +29,22 @@ def _targets_of(loss, batch) -> tuple[torch.Tensor, torch.Tensor]:
     return loss.target_posterior(batch.exclude(loss.tensor_keys.target_mean, loss.tensor_keys.target_var))
 
 
-@pytest.mark.parametrize("inner_dtype", ["float32", "bfloat16"])
-def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(inner_dtype):
+@pytest.mark.parametrize("rows, members, expected", [
+    (1000, 10, [(0, 125), (125, 250), (250, 375), (375, 500), (500, 625), (625, 750), (750, 875), (875, 1000)]),
+    (1000, 1, [(0, 1000)]),
+    (1000, 3, [(0, 416), (416, 832), (584, 1000)]),  # the last overlaps its predecessor: one size
+    (24, 2, [(0, 24)]),
+    (6, 1000, [(0, 4), (2, 6)]),  # at least 4 rows (_MIN_WRITTEN)
+])
+def test_refresh_chunks_have_one_size_and_cover_the_rows(rows, members, expected):
+    assert [(chunk.start, chunk.stop) for chunk in _chunks(rows, members)] == expected
+
+
+@pytest.mark.parametrize("inner_dtype, chunk_transitions", [("float32", None), ("bfloat16", 20)])
+def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monkeypatch, inner_dtype,
+                                                                          chunk_transitions):
+    if chunk_transitions:  # the refresh in chunks of 10 rows (0-10, 10-20, 14-24)
+        monkeypatch.setattr(target_cache, "_CHUNK_TRANSITIONS", chunk_transitions)
     cfgs = [_config("algo=adfq", "hidden=[32,32]", f"inner_dtype={inner_dtype}", f"seed={s}") for s in (0, 1)]
     torch.manual_seed(0)  # the rollout's random actions
     env = make_env("empty1", batch_size=2, seed=0)
@@ -81,6 +96,8 @@ def test_training_with_the_cache_is_training_without_it_bit_for_bit(tmp_path, mo
                  "hidden=[32,32]", "buffer_size=64", "target_update_interval=20", "logger=none",
                  f"compile.update={compile}")
     cfgs = [_config(*overrides, f"method={method}", f"seed={s}") for s in (3, 4)]
+    monkeypatch.setattr(target_cache, "_CHUNK_TRANSITIONS", 50)  # the refresh in chunks of 25 rows, overlapping
+
 
     def final_parameters(name: str) -> list[dict[str, torch.Tensor]]:
         dirs = [tmp_path / name / str(k) for k in range(2)]
