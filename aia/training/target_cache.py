@@ -8,8 +8,9 @@ period's start and for each transition as it is written (one per member per fram
 with the sampled rows. The arithmetic is the same, row by row (a test checks the cached targets against the
 loss's own to the bit). Measured on the 2-core CPU (2026-12-03, one thread, 10 members of the 3 x 256 ADFQ
 network, bfloat16 inner layers, compiled): the update step 9.7-11.4 ms with cached targets against
-17.8-20.7 ms computing them; the buffer's refresh 124-158 ms per period (2.4-3.1 ms a step) and a written
-transition's targets 0.5-1.8 ms a step (among 4, see ``_MIN_WRITTEN``). In the whole protocol the ADFQ
+17.8-20.7 ms computing them; the buffer's refresh 124-158 ms per period (2.4-3.1 ms a step; 109-157 ms in
+chunks, see ``_CHUNK_TRANSITIONS``) and a written transition's targets 0.5-1.8 ms a step (among 4, see
+``_MIN_WRITTEN``). In the whole protocol the ADFQ
 populations' update and targets took 0.88x the update's time before (docs/speed.md).
 """
 
