@@ -51,8 +51,8 @@ def _chunks(rows: int, members: int) -> list[slice]:
 
 
 def _targets(loss: ADFQLoss, keys: tuple[NestedKey, ...], leaves: tuple[torch.Tensor, ...],
-             target_params: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-    """The targets (mean, variance) ``[P, rows]`` of the transitions whose entries ``keys`` are ``leaves``.
+             target_params: TensorDictBase) -> TensorDictBase:
+    """:meth:`ADFQLoss.targets` ``[P, rows]`` of the transitions whose entries ``keys`` are ``leaves``.
 
     Tensors rather than a tensordict go in, so that a compiled copy is one graph for any number of rows (the
     rows dimension marked dynamic): a tensordict's batch size would fix it. A second graph (the buffer's
@@ -61,7 +61,7 @@ def _targets(loss: ADFQLoss, keys: tuple[NestedKey, ...], leaves: tuple[torch.Te
     transitions = TensorDict(batch_size=leaves[0].shape[:2])
     for key, leaf in zip(keys, leaves, strict=True):
         transitions.set(key, leaf)
-    return loss.target_posterior(transitions, target_params)
+    return loss.targets(transitions, target_params)
 
 
 class TargetCache:
@@ -81,10 +81,9 @@ class TargetCache:
         self.network = network
         self.replay = replay
         self.fresh = False
-        self.first_calls = True  # until a refresh and a record have run (the first call compiles)
+        self.first_calls = True  # until the first refresh has run (it compiles)
         self._params: TensorDictBase | None = None  # the target parameters, in the dtypes their layers multiply in
-        self._mean: torch.Tensor | None = None  # [capacity, P], attached to the replay
-        self._var: torch.Tensor | None = None
+        self._columns: TensorDictBase | None = None  # [capacity, P], attached to the replay
         self._targets = compiled_update(_targets) if compile else _targets
 
     def invalidate(self) -> None:
@@ -99,15 +98,13 @@ class TargetCache:
         self._params = self._in_layer_dtypes(self.loss.target_value_network_params.data)
         capacity, members = rows.shape
         for chunk in _chunks(capacity, members):
-            mean, var = self._compute(rows[chunk].transpose(0, 1))
-            if self._mean is None:
-                self._mean, self._var = mean.new_zeros(capacity, members), var.new_zeros(capacity, members)
-                keys = self.loss.tensor_keys
-                self.replay.attach(TensorDict({keys.target_mean: self._mean, keys.target_var: self._var},
-                                              batch_size=[capacity, members]))
-            self._mean[chunk] = mean.transpose(0, 1)
-            self._var[chunk] = var.transpose(0, 1)
+            values = self._compute(rows[chunk].transpose(0, 1)).transpose(0, 1)
+            if self._columns is None:
+                self._columns = values[:1].expand(capacity, members).clone()
+                self.replay.attach(self._columns)
+            self._columns[chunk] = values
         self.fresh = True
+        self.first_calls = False
 
     def record(self, transitions: TensorDictBase, rows: torch.Tensor) -> None:
         """Compute the targets of ``transitions`` (``[T, P]``), just written to ``rows``; nothing while stale
@@ -118,12 +115,11 @@ class TargetCache:
         if written < _MIN_WRITTEN:  # repeated: see _MIN_WRITTEN
             repeats = transitions[:1].expand(_MIN_WRITTEN - written, *transitions.shape[1:])
             transitions = torch.cat([transitions, repeats])
-        mean, var = self._compute(transitions.transpose(0, 1))
-        self._mean.index_copy_(0, rows, mean[:, :written].transpose(0, 1))
-        self._var.index_copy_(0, rows, var[:, :written].transpose(0, 1))
-        self.first_calls = False
+        values = self._compute(transitions.transpose(0, 1))[:, :written].transpose(0, 1)
+        for key, column in self._columns.items(include_nested=True, leaves_only=True):
+            column.index_copy_(0, rows, values.get(key))
 
-    def _compute(self, transitions: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+    def _compute(self, transitions: TensorDictBase) -> TensorDictBase:
         """The targets ``[P, rows]`` of ``transitions`` (``[P, rows]``) under this period's target parameters."""
         keys = tuple(transitions.keys(include_nested=True, leaves_only=True))
         leaves = tuple(transitions.get(key) for key in keys)
