@@ -1,4 +1,4 @@
-"""The children of tree nodes (:meth:`aia.planners.tree.Expansion.children`) as one compiled CPU kernel (numba).
+"""The children of tree nodes (:meth:`aia.planners.tree.Expansion.extend`) as one compiled CPU kernel (numba).
 
 In tensor ops an expansion is some 90 small operations (the arcs, the collision and sight checks, the
 prediction with its det cap, the Kalman update of the visible targets, the log dets), and on the CPU their
@@ -23,30 +23,25 @@ import numpy as np
 
 
 def expand(parents: np.ndarray, pose: np.ndarray, cov: np.ndarray, logdet: np.ndarray, cost: np.ndarray,
-           world: np.ndarray, positions: np.ndarray, arc_cos: np.ndarray, arc_sin: np.ndarray, chord: np.ndarray,
-           turn: np.ndarray, collision: np.ndarray, fine_cell: float, size: tuple[float, float],
-           occupancy: np.ndarray, obstacles: bool, resolution: float, sight_fraction: np.ndarray,
-           sensor_range: float, half_fov: float, min_range: float, transition: np.ndarray, process_noise: np.ndarray,
-           meas_noise: np.ndarray, log_det_cap: float) -> dict[str, np.ndarray]:
-    """The collision-free children of ``parents`` (indices into the level's ``pose [n, 3]``, ``cov [n, N, 4,
-    4]``, ``logdet [n, N]``, ``cost [n]``, ``world [n]``), parent by parent and action by action: a numpy
-    array per field of :class:`~aia.planners.tree.Level` but ``expanded``.
+           world: np.ndarray, positions: np.ndarray, arc_cos: np.ndarray, arc_sin: np.ndarray,
+           out: dict[str, np.ndarray], chord: np.ndarray, turn: np.ndarray, collision: np.ndarray, fine_cell: float,
+           size: tuple[float, float], occupancy: np.ndarray, obstacles: bool, resolution: float,
+           sight_fraction: np.ndarray, sensor_range: float, half_fov: float, min_range: float,
+           transition: np.ndarray, process_noise: np.ndarray, meas_noise: np.ndarray, log_det_cap: float) -> int:
+    """Write the collision-free children of ``parents`` (indices into the level's ``pose [n, 3]``, ``cov [n, N,
+    4, 4]``, ``logdet [n, N]``, ``cost [n]``, ``world [n]``), parent by parent and action by action, to the
+    first rows of ``out`` (an array per field of :class:`~aia.planners.tree.Level` but ``expanded``, a row per
+    parent and action: the rows a :meth:`~aia.planners.tree.Level.reserve` gives); returns how many.
 
     ``arc_cos`` and ``arc_sin`` ``[P, A, K]`` are the cosines and sines of each parent's heading plus each
     primitive's half turn at the ``K`` checked points, ``chord`` and ``turn`` ``[A, K]`` the primitives'
     chords and turns; ``positions [W, N, 2]`` the targets' predicted positions at the children's depth;
     ``occupancy`` is read for lines of sight only where ``obstacles``.
     """
-    count = parents.shape[0] * chord.shape[0]
-    targets = cov.shape[1]
-    out = {"pose": np.empty((count, 3)), "cov": np.empty((count, targets, 4, 4)),
-           "logdet": np.empty((count, targets)), "cost": np.empty(count), "world": np.empty(count, dtype=np.int64),
-           "parent": np.empty(count, dtype=np.int64), "action": np.empty(count, dtype=np.int64)}
-    made = _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin, chord, turn, collision,
+    return _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin, chord, turn, collision,
                    fine_cell, size[0], size[1], occupancy, obstacles, resolution, sight_fraction, sensor_range,
                    half_fov, min_range, transition, process_noise, meas_noise, log_det_cap, out["pose"], out["cov"],
                    out["logdet"], out["cost"], out["world"], out["parent"], out["action"])
-    return {name: value[:made] for name, value in out.items()}
 
 
 @numba.njit(cache=True, nogil=True)

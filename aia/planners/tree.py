@@ -19,16 +19,22 @@ _MIN_CAPACITY = 1024
 
 class Level:
     """All nodes of all worlds at one depth, append-only (indices into it stay valid), in buffers that
-    double when full so that appending copies only the new nodes.
+    double when full so that appending copies only the new nodes. ``storage`` (a level's :attr:`storage`)
+    lends it the buffers of an earlier call's level, already grown and in memory.
 
     Per node: ``pose [3]``, ``cov [N, 4, 4]`` and its per-target ``logdet [N]``, the cost ``g``, its world,
     its ``parent`` (index into the level above), the ``action`` leading to it, and whether it was
     ``expanded`` (its children are in the level below).
     """
 
-    def __init__(self, nodes: dict[str, Tensor]) -> None:
+    def __init__(self, nodes: dict[str, Tensor], storage: dict[str, Tensor] | None = None) -> None:
         self.size = nodes["cost"].shape[0]
-        self._buffers = {name: nodes[name].clone() for name in FIELDS}
+        if storage is not None and all(_holds(storage[name], nodes[name], self.size) for name in FIELDS):
+            self._buffers = dict(storage)
+            for name in FIELDS:
+                self._buffers[name][: self.size] = nodes[name]
+        else:
+            self._buffers = {name: nodes[name].clone() for name in FIELDS}
 
     def __getattr__(self, name: str) -> Tensor:
         if name in FIELDS:
@@ -38,20 +44,45 @@ class Level:
     def append(self, nodes: dict[str, Tensor]) -> None:
         """Append ``nodes`` (a tensor per field but ``expanded``, which starts False)."""
         count = nodes["cost"].shape[0]
+        for name, rows in self.reserve(count).items():
+            rows.copy_(nodes[name])
+        self.commit(count)
+
+    def reserve(self, count: int) -> dict[str, Tensor]:
+        """Room for ``count`` more nodes: a view per field but ``expanded`` of the rows past the last node, to be
+        written in place and kept with :meth:`commit` (an expansion kernel writes its children there directly
+        instead of into arrays of its own that would then be copied)."""
         if self.size + count > self._buffers["cost"].shape[0]:
             capacity = max(2 * self._buffers["cost"].shape[0], self.size + count, _MIN_CAPACITY)
             for name, buffer in self._buffers.items():
                 grown = buffer.new_empty((capacity, *buffer.shape[1:]))  # rows past size: written before read
                 grown[: self.size] = buffer[: self.size]
                 self._buffers[name] = grown
-        for name in FIELDS[:-1]:
-            self._buffers[name][self.size : self.size + count] = nodes[name]
-        self._buffers["expanded"][self.size : self.size + count] = False
-        self.size += count
+        return {name: self._buffers[name][self.size : self.size + count] for name in FIELDS[:-1]}
 
-    def empty(self) -> Level:
-        """A level with no nodes, of the same dtypes, device and trailing shapes."""
-        return Level({name: self._buffers[name][:0] for name in FIELDS})
+    def commit(self, count: int) -> dict[str, Tensor]:
+        """Keep the first ``count`` rows that :meth:`reserve` gave (not expanded yet); returns them, a view per
+        field but ``expanded``."""
+        start = self.size
+        self._buffers["expanded"][start : start + count] = False
+        self.size += count
+        return {name: self._buffers[name][start : self.size] for name in FIELDS[:-1]}
+
+    @property
+    def storage(self) -> dict[str, Tensor]:
+        """The level's buffers (a tensor per field, at least :attr:`size` rows), for a later level to reuse."""
+        return self._buffers
+
+    def empty(self, storage: dict[str, Tensor] | None = None) -> Level:
+        """A level with no nodes, of the same dtypes, device and trailing shapes (in ``storage``, another level's
+        :attr:`storage`, where it has them)."""
+        return Level({name: self._buffers[name][:0] for name in FIELDS}, storage)
+
+
+def _holds(buffer: Tensor, nodes: Tensor, count: int) -> bool:
+    """Whether ``buffer`` can store ``count`` rows like ``nodes``."""
+    return (buffer.shape[0] >= count and buffer.shape[1:] == nodes.shape[1:] and buffer.dtype == nodes.dtype
+            and buffer.device == nodes.device)
 
 
 class Expansion:
@@ -67,16 +98,22 @@ class Expansion:
         # what the CPU kernel reads of the model (made on first use): the arcs' half turns, and the rest
         self._kernel_constants: tuple[Tensor, dict] | None = None
 
-    def children(self, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
-        """The collision-free children of ``parents`` (indices into ``level``), the targets predicted at
-        ``positions [W, N, 2]``: a tensor per field of :class:`Level` but ``expanded``, parent by parent and
-        action by action. On the CPU (float64) one compiled kernel makes them
-        (:mod:`aia.planners.expansion_cpu`), elsewhere :meth:`children_tensors`: the same children."""
+    def extend(self, below: Level, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
+        """Append the collision-free children of ``parents`` (indices into ``level``), the targets predicted at
+        ``positions [W, N, 2]``, to ``below``, parent by parent and action by action; returns them (a view per
+        field of :class:`Level` but ``expanded``). On the CPU (float64) one compiled kernel writes them into
+        ``below`` (:mod:`aia.planners.expansion_cpu`), elsewhere :meth:`children_tensors` makes them: the same
+        children."""
         if parents.device.type == "cpu" and level.cov.dtype == torch.float64:
-            return self._children_kernel(level, parents, positions)
-        return self.children_tensors(level, parents, positions)
+            rows = below.reserve(parents.numel() * self.model.primitives.shape[0])
+            return below.commit(self._children_kernel(level, parents, positions, rows))
+        children = self.children_tensors(level, parents, positions)
+        below.append(children)
+        return children
 
-    def _children_kernel(self, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
+    def _children_kernel(self, level: Level, parents: Tensor, positions: Tensor, out: dict[str, Tensor]) -> int:
+        """The kernel's children written to the first rows of ``out`` (a tensor per field but ``expanded``, a
+        row per parent and action); returns how many."""
         from aia.planners.expansion_cpu import expand  # here: numba's import costs every command 0.3 s
 
         if self._kernel_constants is None:
@@ -84,10 +121,10 @@ class Expansion:
         half_turn, constants = self._kernel_constants
         # the arcs' cosines and sines as se2_step computes them (the same tensor ops: the same bits)
         heading = level.pose.index_select(0, parents)[:, None, None, 2] + half_turn
-        children = expand(parents.numpy(), level.pose.numpy(), level.cov.numpy(), level.logdet.numpy(),
-                          level.cost.numpy(), level.world.numpy(), positions.contiguous().numpy(),
-                          torch.cos(heading).numpy(), torch.sin(heading).numpy(), **constants)
-        return {name: torch.from_numpy(value) for name, value in children.items()}
+        return expand(parents.numpy(), level.pose.numpy(), level.cov.numpy(), level.logdet.numpy(),
+                      level.cost.numpy(), level.world.numpy(), positions.contiguous().numpy(),
+                      torch.cos(heading).numpy(), torch.sin(heading).numpy(),
+                      {name: value.numpy() for name, value in out.items()}, **constants)
 
     def _make_kernel_constants(self) -> tuple[Tensor, dict]:
         """The arcs' half turns ``[A, K]`` and what else the CPU kernel reads of the model (numpy arrays, floats)."""

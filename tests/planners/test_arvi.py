@@ -103,13 +103,13 @@ def test_a_time_budget_reads_the_clock_within_a_big_level(monkeypatch):
     env = make_env("empty1", transforms=False)
     pose, mean, cov = _scene()
     expanded = []
-    children = search.Expansion.children
+    extend = search.Expansion.extend
 
-    def counting(self, level, parents, positions):
+    def counting(self, below, level, parents, positions):
         expanded.append(parents.numel())
-        return children(self, level, parents, positions)
+        return extend(self, below, level, parents, positions)
 
-    monkeypatch.setattr(search.Expansion, "children", counting)
+    monkeypatch.setattr(search.Expansion, "extend", counting)
     monkeypatch.setattr(search, "_TIMED_CHUNK", 64)
     untimed = ARVIPlanner(env, _config(max_passes=36)).plan(pose, mean, cov)
     assert max(expanded) > 64  # a pass budget expands a level's fresh nodes at once

@@ -30,15 +30,19 @@ def _states(setting: str, worlds: int, seed: int) -> tuple[torch.Tensor, torch.T
     ("small3", {"eps": 0.5}),  # three targets
 ])
 def test_the_kernel_makes_the_children_of_the_tensor_ops(setting, overrides, monkeypatch):
-    kernel = Expansion.children
+    kernel = Expansion.extend
     seen = {"calls": 0, "children": 0, "dropped": 0, "updated": 0, "capped": 0}
 
-    def both(self, level, parents, positions):
-        made, expected = kernel(self, level, parents, positions), self.children_tensors(level, parents, positions)
+    def both(self, below, level, parents, positions):
+        before = below.size
+        made = kernel(self, below, level, parents, positions)
+        expected = self.children_tensors(level, parents, positions)
         for name in ("pose", "world", "parent", "action"):
             assert torch.equal(made[name], expected[name]), name
+            assert torch.equal(getattr(below, name)[before:], expected[name]), name  # appended to the level
         for name in ("cov", "logdet", "cost"):
             torch.testing.assert_close(made[name], expected[name], rtol=1e-12, atol=1e-12)
+        assert not below.expanded[before:].any()
         prior = level.cov.index_select(0, made["parent"])
         seen["calls"] += 1
         seen["children"] += made["cost"].numel()
@@ -47,7 +51,7 @@ def test_the_kernel_makes_the_children_of_the_tensor_ops(setting, overrides, mon
         seen["capped"] += int((made["cov"] == prior).flatten(2).all(-1).sum())
         return made
 
-    monkeypatch.setattr(Expansion, "children", both)
+    monkeypatch.setattr(Expansion, "extend", both)
     planner = ARVIPlanner(make_env(setting, transforms=False),
                           ARVIConfig(time_budget=None, max_nodes=1500, **overrides))
     planner.plan(*_states(setting, worlds=3, seed=5))
@@ -55,6 +59,22 @@ def test_the_kernel_makes_the_children_of_the_tensor_ops(setting, overrides, mon
     # every branch of the kernel was taken: collisions, Kalman updates, the det cap
     assert seen["updated"] > 0 and seen["capped"] > 0
     assert seen["dropped"] > 0 or setting != "obstacles1"
+
+
+def test_a_planner_reusing_its_buffers_plans_as_a_fresh_one():
+    """The levels' buffers kept from an earlier (larger) call change nothing of a later call's plans."""
+    env = make_env("small3", transforms=False)
+    config = ARVIConfig(time_budget=None, max_nodes=800)
+    reused = ARVIPlanner(env, config)
+    reused.plan(*_states("small3", worlds=4, seed=1))
+    grown = [level["cost"].shape[0] for level in reused.storage]
+    for seed in (2, 3):
+        states = _states("small3", worlds=2, seed=seed)
+        again, fresh = reused.plan(*states), ARVIPlanner(env, config).plan(*states)
+        for name in ("actions", "cost", "nodes"):
+            assert torch.equal(getattr(again, name), getattr(fresh, name)), name
+    assert [level["cost"].shape[0] for level in reused.storage] == grown  # the first call's buffers, reused
+    assert max(grown) >= 1024
 
 
 def test_planning_leaves_plain_tensors():
