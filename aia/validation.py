@@ -46,6 +46,7 @@ def _check_run_basics(cfg: DictConfig) -> None:
 def validate_train_config(cfg: DictConfig) -> None:
     """Check the composed ``aia-train`` config (conf/train.yaml); raise ``ConfigError`` on the first bad value."""
     _check_run_basics(cfg)
+    check_flag("keep_freed_memory", _value(cfg, "keep_freed_memory"))
     for key in _TRAIN_POSITIVE_INTEGERS:
         check_number(key, _value(cfg, key), ge=1, integer=True)
     check_number("warmup_frames", _value(cfg, "warmup_frames"), ge=0, integer=True)
@@ -112,6 +113,7 @@ def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None
     (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` the checkpoint carries its own setting,
     so an ``env`` or ``planner`` override, which it would ignore, is refused."""
     _check_run_basics(cfg)
+    check_flag("keep_freed_memory", _value(cfg, "keep_freed_memory"))
     policy = _value(cfg, "policy")
     check_choice("policy", policy, EVAL_POLICIES)
     check_number("episodes", _value(cfg, "episodes"), ge=1, integer=True)

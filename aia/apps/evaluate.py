@@ -30,6 +30,7 @@ from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
+from aia.memory import keep_freed_memory
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
 from aia.training import make_actor
@@ -156,6 +157,8 @@ def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float
     first = cfgs[0]
     if first.threads:
         torch.set_num_threads(first.threads)
+    if first.keep_freed_memory:
+        keep_freed_memory()
     loggers = [MCAPLogger(f"eval-{cfg.policy}-seed{cfg.seed}", out_dir,
                           run_metadata={"seed": cfg.seed, "policy": cfg.policy})
                for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]

@@ -47,6 +47,7 @@ from aia.errors import ConfigError
 from aia.evaluation import log_score_summary
 from aia.evaluator import Evaluator
 from aia.logging import MCAPLogger
+from aia.memory import keep_freed_memory
 from aia.modules import PopulationQPolicy
 from aia.modules.q_networks import make_qvalue_actor
 from aia.timing import PhaseTimer
@@ -133,6 +134,8 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     seeds = [int(c.seed) for c in cfgs]
     if cfg.get("threads"):
         torch.set_num_threads(cfg.threads)
+    if cfg.keep_freed_memory:
+        keep_freed_memory()
     env_config = to_tracking_config(cfg.env)
     env = make_env(env_config, batch_size=P * W, device=cfg.device, compile=cfg.compile.env)
     # The collector copies every key of every frame: keep what the policy, the loss and the score read.
