@@ -14,7 +14,9 @@
    ``member_frames_per_s_wall_clock`` is the jobs' wall-clock difference, which also carries the set-up that
    differs between two jobs (twice on 2026-12-02 it came out 1.7x off the phase sum). Each row also gives the
    arithmetic it does (the updates' and the acting's matmul FLOPs per member-frame) as a share of this
-   machine's measured matmul rate (``sgemm_gflops``, all threads), the ceiling a batched program can reach.
+   machine's measured matmul rate (``sgemm_gflops``, all threads), the ceiling a batched program can reach,
+   and the time one update's batched products take alone on their own shapes (``update_matmuls_ms``, the
+   "products" column): the floor under the update phase, against which the update's other work shows.
 2. The vmap alternative: one update of P members of the 3 x 128 DQN by ``torch.vmap`` over TorchRL's
    ``DQNLoss`` with the members' parameters stacked and entered with ``to_module``, against the stacked
    network inside one ``DQNLoss`` (what the loop uses), eager, P = 1 and 20.
@@ -129,6 +131,39 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
             "ms_per_step_by_phase": split}
 
 
+def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", repeats: int = 50) -> float:
+    """ms of one update's batched products alone, ``members`` members (eager ``torch.bmm`` on the loop's shapes,
+    batch 64: the online network's forward, for DQN the target network's forward on s' (ADFQ's targets come
+    from its cache), and the backward's weight and input gradients; the layers between two hidden layers in
+    ``inner_dtype``): the floor under the update phase, whatever the step's other work costs."""
+    _, _, obs, hidden = ROWS[algo]
+    widths = [obs, *hidden, 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS]
+    generator = torch.Generator().manual_seed(0)
+    layers = []
+    for index, (fan_in, fan_out) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
+        inner = 0 < index < len(widths) - 2
+        dtype = getattr(torch, inner_dtype) if inner else torch.float32
+        layers.append(tuple(torch.randn(shape, generator=generator).to(dtype) for shape in
+                            ((members, fan_in, fan_out), (members, BATCH, fan_in), (members, BATCH, fan_out))))
+    forwards = 2 if algo == "dqn" else 1
+
+    def products() -> None:
+        for _ in range(forwards):
+            for weight, inputs, _ in layers:
+                torch.bmm(inputs, weight)
+        for index, (weight, inputs, grad) in enumerate(layers):
+            torch.bmm(inputs.transpose(1, 2), grad)
+            if index:
+                torch.bmm(grad, weight.transpose(1, 2))
+
+    for _ in range(10):
+        products()
+    start = time.perf_counter()
+    for _ in range(repeats):
+        products()
+    return 1e3 * (time.perf_counter() - start) / repeats
+
+
 def _median_run(runs: list[dict], solo_runs: list[dict | None]) -> dict:
     """The run of median member-frames/s among ``runs`` (one per round; of an even number, the upper), with
     every round's rate (``member_frames_per_s_runs``), every round's ratio to its own P = 1 run
@@ -230,7 +265,8 @@ def main() -> None:
     gflops_before = sgemm_gflops()
     rows = []
     print(f"{'algo':<6}{'network':<13}{'mode':<10}{'inner':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
-          f"{'x P=1 (range)':<16}{'with eval':>11}{'% of matmul peak':>18}  ms per step by phase")
+          f"{'x P=1 (range)':<16}{'with eval':>11}{'% of matmul peak':>18}{'products':>10}"
+          f"  ms per step by phase")
     for algo, mode, dtype in itertools.product(algos, modes, dtypes):
         # rounds of every size, one after another, so that the sizes of one round meet the same VM
         rounds = [{members: measure_population(algo, members, mode == "compiled", args.warmup, args.frames,
@@ -240,6 +276,7 @@ def main() -> None:
             row = _median_run([r[members] for r in rounds], [r.get(1) for r in rounds])
             row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(algo) / (
                 gflops_before * 1e9)
+            row["update_matmuls_ms"] = update_matmuls_ms(algo, members, dtype)
             rows.append(row)
             rates = row["member_frames_per_s_runs"]
             spread = f" ({min(rates):,.0f}-{max(rates):,.0f})" if len(rates) > 1 else ""
@@ -252,7 +289,8 @@ def main() -> None:
             print(f"{algo:<6}{row['network']:<13}{mode:<10}{dtype:<10}{members:>4}"
                   f"{row['member_frames_per_s']:>17,.0f}{spread:<16}"
                   f"{speedup:<16}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
-                  f"{100 * row['share_of_sgemm_peak']:>17.1f}%  {phases}", flush=True)
+                  f"{100 * row['share_of_sgemm_peak']:>17.1f}%{row['update_matmuls_ms']:>10.2f}  {phases}",
+                  flush=True)
     print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
           f"{'stacked network ms':>20}")
     for members in (1, 20):
