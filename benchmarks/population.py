@@ -53,6 +53,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -81,15 +82,30 @@ def _config(*overrides: str):
         return compose(config_name="train", overrides=list(overrides))
 
 
+def _widths(algo: str) -> list[int]:
+    """The benchmarked network's layer widths: observation, hidden layers, outputs (ADFQ: a mean and a log-sd
+    per action)."""
+    _, _, obs, hidden = ROWS[algo]
+    return [obs, *hidden, 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS]
+
+
+def _ms_per_call(fn: Callable[[], object], repeats: int, warmup: int) -> float:
+    """Milliseconds per call of ``fn``, over ``repeats`` calls after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        fn()
+    start = time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    return 1e3 * (time.perf_counter() - start) / repeats
+
+
 def flops_per_member_frame(algo: str) -> float:
     """Matmul FLOPs of one member-frame: acting on one world, and one update of a batch of 64 (forward of
     the online network and its backward, twice the forward; the target network's forward on s'). ADFQ's
     targets come from ``aia.training.target_cache.TargetCache``: the target network on s and s' of the
     buffer's 1,000 rows once per 51-update target period, and of each written transition (computed among 4):
     2 x (1,000 / 51 + 4) rows a frame instead of 2 x 64."""
-    _, _, obs, hidden = ROWS[algo]
-    outputs = 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS
-    widths = [obs, *hidden, outputs]
+    widths = _widths(algo)
     per_sample = 2 * sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True))
     target_rows = 2 * (BUFFER_SIZE / TARGET_PERIOD + 4) if algo == "adfq" else BATCH
     return per_sample * (1 + 3 * BATCH + target_rows)
@@ -136,8 +152,7 @@ def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", rep
     batch 64: the online network's forward, for DQN the target network's forward on s' (ADFQ's targets come
     from its cache), and the backward's weight and input gradients; the layers between two hidden layers in
     ``inner_dtype``): the floor under the update phase, whatever the step's other work costs."""
-    _, _, obs, hidden = ROWS[algo]
-    widths = [obs, *hidden, 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS]
+    widths = _widths(algo)
     generator = torch.Generator().manual_seed(0)
     layers = []
     for index, (fan_in, fan_out) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
@@ -156,12 +171,7 @@ def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", rep
             if index:
                 torch.bmm(grad, weight.transpose(1, 2))
 
-    for _ in range(10):
-        products()
-    start = time.perf_counter()
-    for _ in range(repeats):
-        products()
-    return 1e3 * (time.perf_counter() - start) / repeats
+    return _ms_per_call(products, repeats, warmup=10)
 
 
 def _median_run(runs: list[dict], solo_runs: list[dict | None]) -> dict:
@@ -208,12 +218,7 @@ def measure_vmap_update(members: int, repeats: int = 30) -> dict:
 
     result = {"kind": "update_alternatives", "algo": "dqn", "network": "128x128x128", "members": members}
     for name, fn in (("vmap_dqn_loss_ms", vmapped), ("stacked_network_ms", stacked_update)):
-        for _ in range(3):
-            fn()
-        start = time.perf_counter()
-        for _ in range(repeats):
-            fn()
-        result[name] = 1e3 * (time.perf_counter() - start) / repeats
+        result[name] = _ms_per_call(fn, repeats, warmup=3)
     return result
 
 
