@@ -50,8 +50,7 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
               f"{len(valid)}, seeds {[cfgs[i].seed for i in valid]}")
         with StopOnSignals() as stop:
             states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop)
-        for index, state in zip(valid, states, strict=True):
-            report(cfgs[index], out_dirs[index], state)
+        report_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], states)
         exit_if_stopped(stop, [out_dirs[i] for i in valid], states[0])
         return [search_objective(state.eval_scores) for state in states]
 
@@ -70,15 +69,34 @@ def exit_if_stopped(stop: StopOnSignals, out_dirs: Sequence[Path], state: Traini
 
 def report(cfg: DictConfig, out_dir: Path, state: TrainingState) -> None:
     """What a finished run prints: its counters, last score, time split, log and checkpoint."""
-    last = f"{state.eval_scores[-1]:.1f}" if state.eval_scores else "n/a"
-    print(f"{state.frames} frames, {state.episodes} episodes, {state.updates} updates; last eval score {last}")
+    print(f"{state.frames} frames, {state.episodes} episodes, {state.updates} updates; "
+          f"last eval score {_last_score(state)}")
     print(f"time: {PhaseTimer(state.seconds).summary()}")
-    if cfg.logger.name == "mcap":
-        log = out_dir / cfg.logger.file
-        print(f"log written to {log} (inspect: aia-log summary {log})")
-    else:
-        print(f"log written to {out_dir}")
+    log = _log_path(cfg, out_dir)
+    print(f"log written to {log}" + (f" (inspect: aia-log summary {log})" if log != out_dir else ""))
     print(f"checkpoint: {out_dir / CHECKPOINT_NAME}")
+
+
+def report_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], states: Sequence[TrainingState]
+                      ) -> None:
+    """What a finished population prints: the counters and time split its members share, once, then a line
+    per member (its learner, seed, learning rate, last score and log); checkpoints lie in each job folder."""
+    shared = states[0]
+    print(f"population of {len(states)} trained: {shared.frames} frames, {shared.episodes} episodes, "
+          f"{shared.updates} updates each; time: {PhaseTimer(shared.seconds).summary()}")
+    for cfg, out_dir, state in zip(cfgs, out_dirs, states, strict=True):
+        print(f"  {cfg.algo.name} ({cfg.exploration.name}) seed {cfg.seed} lr {cfg.lr:g}: last eval score "
+              f"{_last_score(state)}, log {_log_path(cfg, out_dir)}")
+    print(f"each member's checkpoint: {CHECKPOINT_NAME} in its folder; inspect a log: aia-log summary <log>")
+
+
+def _last_score(state: TrainingState) -> str:
+    return f"{state.eval_scores[-1]:.1f}" if state.eval_scores else "n/a"
+
+
+def _log_path(cfg: DictConfig, out_dir: Path) -> Path:
+    """The run's MCAP log (``logger=mcap``), else its folder."""
+    return out_dir / cfg.logger.file if cfg.logger.name == "mcap" else out_dir
 
 
 if __name__ == "__main__":

@@ -69,6 +69,9 @@ def test_one_sweep_trains_a_2_and_a_3_member_population(tmp_path, monkeypatch, c
     assert len(composed) == 5  # each job's config composed once (the sweeper's check; the launcher reuses it)
     assert "5 jobs in 2 population(s) of 2, 3 member(s)" in out
     assert "as a population of 2, seeds [0, 1]" in out and "as a population of 3, seeds [2, 3, 4]" in out
+    # a population's shared counters and time once, then a line per member naming its seed and log
+    assert out.count("population of 2 trained: 130 frames") == 1 and out.count("population of 3 trained:") == 1
+    assert out.count("time: ") == 2
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 5
     assert [r.hydra_cfg.hydra.job.num for r in returns] == [0, 1, 2, 3, 4]
     for job, ret in enumerate(returns):
@@ -80,6 +83,8 @@ def test_one_sweep_trains_a_2_and_a_3_member_population(tmp_path, monkeypatch, c
         assert run.complete and run.config_value("seed") == job
         assert run.config_value("hidden") == ([16] if job < 2 else [24])
         assert ret.return_value == pytest.approx(run.scalars("eval/score").values[-1])  # the search objective
+        last, lr = run.scalars("eval/score").values[-1], run.config_value("lr")
+        assert f" seed {job} lr {lr:g}: last eval score {last:.1f}, log {folder / 'run.mcap'}\n" in out
     assert (tmp_path / "sweep" / "multirun.yaml").is_file()
 
 
