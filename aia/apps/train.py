@@ -46,8 +46,9 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
     (an invalid config fails its own job only: the others train without it)."""
     def train_valid(valid: list[int]) -> list[float]:
         first = cfgs[valid[0]]
-        print(f"training {first.algo.name} ({first.exploration.name}) for {first.frames} frames as a population of "
-              f"{len(valid)}, seeds {[cfgs[i].seed for i in valid]}")
+        learners = ", ".join(dict.fromkeys(f"{cfgs[i].algo.name} ({cfgs[i].exploration.name})" for i in valid))
+        print(f"training {learners} on {first.env.map} with {first.env.num_targets} target(s) for {first.frames} "
+              f"frames as a population of {len(valid)}, seeds {[cfgs[i].seed for i in valid]}")
         with StopOnSignals() as stop:
             states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop)
         report_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], states)

@@ -102,6 +102,7 @@ def test_a_sweep_over_methods_plots_grouped_by_method(tmp_path, monkeypatch, cap
     returns, out = _multirun(tmp_path, monkeypatch, capsys, "method=dqn,ddqn,adfq_ts", "seed=0,1")
     # DQN and Double DQN share a network and a loss: one population of 4
     assert "6 jobs in 2 population(s) of 4, 2 member(s)" in out
+    assert "training dqn (egreedy), ddqn (egreedy) on empty with 1 target(s) for 130 frames as a population of 4" in out
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 6
     assert log_main(["plot", str(tmp_path / "sweep"), "--group-by", "method", "--out", str(tmp_path / "m.png")]) == 0
     out = capsys.readouterr().out
