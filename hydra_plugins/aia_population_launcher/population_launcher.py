@@ -13,7 +13,9 @@ Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_
    episodes in one batch), groups in parallel processes up to ``n_jobs``, each with its share of the cores
    as its torch thread pool, the largest first (:func:`aia.training.members.population_work`: the longest
    populations do not end up last, alone on one core);
-4. returns one ``JobReturn`` per job, completed with the job's own result or failed with its own error.
+4. says as each population ends how many have ended, after how long, and which jobs it ran (with how many
+   of them failed);
+5. returns one ``JobReturn`` per job, completed with the job's own result or failed with its own error.
 
 Its settings are ``conf/hydra/launcher/population.yaml`` (``n_jobs``, ``task``), found by Hydra in aia's
 config path like the other launchers' (an editable install hides this namespace package from Hydra's plugin
@@ -25,6 +27,7 @@ from __future__ import annotations
 import importlib
 import logging
 import os
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -94,6 +97,25 @@ def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | N
     return [(not isinstance(r, BaseException), r) for r in results]
 
 
+def _run_numbered(index: int, *call) -> tuple[int, list[tuple[bool, object]]]:
+    """:func:`run_group` of the ``index``-th population, with its index (populations end in any order)."""
+    return index, run_group(*call)
+
+
+def _job_numbers(numbers: list[int]) -> str:
+    """``"jobs 20-29"`` for a run of consecutive job numbers, else ``"jobs 3, 7, 9"`` (one job: ``"job 3"``)."""
+    if len(numbers) == 1:
+        return f"job {numbers[0]}"
+    if numbers == list(range(numbers[0], numbers[0] + len(numbers))):
+        return f"jobs {numbers[0]}-{numbers[-1]}"
+    return "jobs " + ", ".join(map(str, numbers))
+
+
+def _minutes(seconds: float) -> str:
+    """``"12:05"`` (minutes and seconds)."""
+    return f"{int(seconds) // 60}:{int(seconds) % 60:02d}"
+
+
 class PopulationLauncher(Launcher):
     """Launches a sweep as populations (see the module docstring)."""
 
@@ -141,9 +163,18 @@ class PopulationLauncher(Launcher):
         calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],
                   [prepared[i].return_value for i in group], threads) for group in groups]
         if parallel == 1:
-            outcomes = [run_group(*call) for call in calls]
-        else:
-            outcomes = Parallel(n_jobs=parallel, backend="loky")(delayed(run_group)(*call) for call in calls)
+            finished = ((index, run_group(*call)) for index, call in enumerate(calls))
+        else:  # as each population ends, whatever its place in the order
+            finished = Parallel(n_jobs=parallel, backend="loky", return_as="generator_unordered")(
+                delayed(_run_numbered)(index, *call) for index, call in enumerate(calls))
+        outcomes: list[list[tuple[bool, object]]] = [[] for _ in calls]
+        start = time.monotonic()
+        for done, (index, results) in enumerate(finished, 1):
+            outcomes[index] = results
+            numbers = [prepared[i].hydra_cfg.hydra.job.num for i in groups[index]]
+            failed = sum(not ok for ok, _ in results)
+            print(f"population launcher: {done}/{len(calls)} done after {_minutes(time.monotonic() - start)}: "
+                  f"{_job_numbers(numbers)}" + (f", {failed} failed" if failed else ""))
         for group, results in zip(groups, outcomes, strict=True):
             for index, (ok, result) in zip(group, results, strict=True):
                 prepared[index].status = JobStatus.COMPLETED if ok else JobStatus.FAILED

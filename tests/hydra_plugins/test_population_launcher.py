@@ -5,6 +5,7 @@ in-process (``main()`` with ``sys.argv`` patched)."""
 
 from __future__ import annotations
 
+import re
 import sys
 
 import pytest
@@ -72,6 +73,9 @@ def test_one_sweep_trains_a_2_and_a_3_member_population(tmp_path, monkeypatch, c
     # a population's shared counters and time once, then a line per member naming its seed and log
     assert out.count("population of 2 trained: 130 frames") == 1 and out.count("population of 3 trained:") == 1
     assert out.count("time: ") == 2
+    # a line as each population ends: how many of all, after how long, which jobs
+    assert re.search(r"population launcher: 1/2 done after 0:\d\d: jobs 0-1\n", out)
+    assert re.search(r"population launcher: 2/2 done after 0:\d\d: jobs 2-4\n", out)
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 5
     assert [r.hydra_cfg.hydra.job.num for r in returns] == [0, 1, 2, 3, 4]
     for job, ret in enumerate(returns):
@@ -112,7 +116,8 @@ def test_a_sweep_over_methods_plots_grouped_by_method(tmp_path, monkeypatch, cap
 
 
 def test_a_member_with_a_bad_value_fails_alone(tmp_path, monkeypatch, capsys):
-    returns, _ = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,-1", fails=True)
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,-1", fails=True)
+    assert re.search(r"population launcher: 1/1 done after 0:\d\d: jobs 0-3, 2 failed\n", out)
     assert [r.status for r in returns] == [JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.COMPLETED,
                                            JobStatus.FAILED]
     assert "lr=-1" in str(returns[1]._return_value)
