@@ -32,7 +32,7 @@ from aia.logging.curves import (
     lower_is_better,
     select_runs,
 )
-from aia.logging.mcap_logger import flatten
+from aia.logging.metadata import flatten
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
 
 RENDER_FORMATS = (".gif", ".png")

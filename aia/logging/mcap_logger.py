@@ -57,10 +57,10 @@ from torchrl.record.loggers import Logger
 
 from aia.errors import one_line
 from aia.logging import schemas
+from aia.logging.metadata import STATUS_METADATA, flatten
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 LOG_TOPIC = "/log"
-STATUS_METADATA = "status"  # written only by a run that ended early: {"status": "failed" | "stopped", "reason"}
 _PACKAGES = ("aia", "torch", "torchrl", "tensordict", "hydra-core", "mcap", "numpy")
 
 
@@ -256,18 +256,6 @@ def _json(message: Mapping[str, Any]) -> bytes:
 def _time(ns: int) -> dict[str, int]:
     sec, nsec = divmod(ns, 1_000_000_000)
     return {"sec": sec, "nsec": nsec}
-
-
-def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
-    """``{"a": {"b": 1}}`` -> ``{"a.b": "1"}`` (lists and scalars become their YAML flow text)."""
-    flat: dict[str, str] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping) and value:
-            flat.update(flatten(value, f"{name}."))
-        else:
-            flat[name] = yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("\n...").strip()
-    return flat
 
 
 def run_description(exp_name: str) -> dict[str, str]:

@@ -23,8 +23,17 @@ from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, 
 from mcap.stream_reader import StreamReader
 
 from aia.logging import schemas
-from aia.logging.mcap_logger import STATUS_METADATA
-from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, SceneFrame, WorldInfo, parse_frame, parse_world
+from aia.logging.metadata import STATUS_METADATA
+from aia.logging.scenes import (
+    SCENE_TOPIC,
+    TF_TOPIC,
+    WORLD_TOPIC,
+    SceneFrame,
+    WorldInfo,
+    parse_frame,
+    parse_world,
+    world_episode,
+)
 from aia.logging.segments import RESUMED_AFTER_KEY, is_later_segment, later_segments
 
 
@@ -124,7 +133,7 @@ class RunLog:
 
     def episodes(self) -> list[int]:
         """Indices of the recorded episodes, in recording order."""
-        return [parse_world(m.data).episode for m in self.messages if m.topic == WORLD_TOPIC]
+        return [world_episode(m.data) for m in self.messages if m.topic == WORLD_TOPIC]
 
     def episode(self, which: int | str = "last") -> tuple[WorldInfo, list[SceneFrame]]:
         """The map and the frames of a recorded episode: its index, ``"first"`` or ``"last"``."""

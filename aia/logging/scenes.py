@@ -25,10 +25,12 @@ import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from aia.envs.maps import GridMap
+if TYPE_CHECKING:  # imported where a world is parsed: reading scalars needs no torch
+    from aia.envs.maps import GridMap
 
 WORLD_TOPIC = "/world"
 TF_TOPIC = "/tf"
@@ -223,9 +225,16 @@ def _yaw(orientation: dict) -> float:
     return 2.0 * math.atan2(orientation["z"], orientation["w"])
 
 
+def world_episode(data: bytes) -> int:
+    """The episode index of a ``/world`` message, without rasterising its map (:func:`parse_world`)."""
+    return int(_meta(json.loads(data)["entities"][0])["episode"])
+
+
 def parse_world(data: bytes) -> WorldInfo:
     """Invert :func:`world_message`: the map is rasterised back from its cubes."""
     import torch
+
+    from aia.envs.maps import GridMap
 
     entity = json.loads(data)["entities"][0]
     meta = _meta(entity)

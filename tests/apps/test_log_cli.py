@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -43,6 +45,21 @@ def test_summary_lists_topics_episodes_and_scores(recorded, capsys):
     out = capsys.readouterr().out
     assert "[complete]" in out and "/scene" in out and "foxglove.SceneUpdate" in out
     assert "1 recorded: 2" in out and "last 12.5 at frame 50" in out
+
+
+def test_reading_commands_start_without_torch(recorded, tmp_path):
+    """summary, scalars and plot read logs without importing torch or TorchRL (a fresh interpreter each): the
+    writers load on first use, a recorded episode's index comes without rasterising its map."""
+    runs = [_fake_run(tmp_path / f"r{seed}", "dqn", seed, [1.0, 2.0]) for seed in (0, 1)]
+    commands = [["summary", str(recorded)],
+                ["scalars", str(runs[0]), "--topic", "eval/score", "--csv", str(tmp_path / "s.csv")],
+                ["plot", str(tmp_path), "--group-by", "algo", "--out", str(tmp_path / "p.png")]]
+    for command in commands:
+        code = (f"import sys; from aia.apps.log_cli import main; assert main({command!r}) == 0; "
+                "print(sorted(m for m in ('torch', 'torchrl', 'tensordict') if m in sys.modules))")
+        result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+        assert result.returncode == 0, result.stderr[-2000:]
+        assert result.stdout.strip().splitlines()[-1] == "[]", command
 
 
 def test_summary_of_a_truncated_file_says_so(recorded, tmp_path, capsys):

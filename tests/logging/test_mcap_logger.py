@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from omegaconf import OmegaConf
 
 from aia.logging import MCAPLogger, read_run
-from aia.logging.mcap_logger import flatten
+from aia.logging.metadata import flatten
 
 
 def _messages(path):
