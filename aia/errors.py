@@ -1,4 +1,5 @@
-"""The one error type of invalid user input (a config value, a map file, a command-line argument)."""
+"""The errors the apps report in one line: invalid user input (a config value, a map file, a command-line
+argument; exit status 2) and a sweep job lost with the process that ran it (exit status 1)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,11 @@ class ConfigError(ValueError):
     def __str__(self) -> str:
         where = f"{self.source}: " if self.source else ""
         return " ".join(f"{where}{self.key}={self.value!r}: expected {self.allowed}".split())
+
+
+class JobFailed(RuntimeError):
+    """A sweep job that failed for a reason outside its config: the process running it died (killed for its
+    memory, a crash). The apps print it in one line and exit with status 1 (:mod:`aia.apps.hydra_app`)."""
 
 
 def one_line(message: object) -> str:

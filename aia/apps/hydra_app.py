@@ -3,7 +3,9 @@
 Libraries log at WARNING and above only (torchrl's INFO lines would break into the progress bar). An
 invalid input (a :class:`~aia.errors.ConfigError` from the validation layer, or a command line Hydra
 cannot compose: an unknown group option or key, a malformed override) ends the app with one line on stderr,
-``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. Any other exception is an internal
+``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. A sweep job whose process died
+(:class:`~aia.errors.JobFailed`) ends it, after the other jobs, with one line and exit status 1. Any other
+exception is an internal
 error and keeps its full traceback. ``--debug`` (taken off the command line) or ``HYDRA_FULL_ERROR=1`` keeps
 the traceback of invalid input too.
 """
@@ -24,12 +26,13 @@ from hydra.errors import ConfigCompositionException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from aia.errors import ConfigError, one_line
+from aia.errors import ConfigError, JobFailed, one_line
 
 COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
 DEBUG_FLAG = "--debug"
 QUIET_LIBRARIES = ("torchrl",)
 EXIT_USAGE = 2
+EXIT_FAILURE = 1  # a sweep's job lost with its process
 
 
 def group_options(group: str) -> str:
@@ -102,6 +105,10 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
                 if debug:
                     raise
                 _exit_with(prog, err)
+            except JobFailed as err:  # a sweep's job whose process died (the others ran to their end)
+                if debug:
+                    raise
+                _exit_with(prog, err, EXIT_FAILURE)
             finally:
                 if previous is None:
                     os.environ.pop("HYDRA_FULL_ERROR", None)
@@ -123,6 +130,6 @@ def composition_message(err: Exception) -> str:
     return message
 
 
-def _exit_with(prog: str, err: Exception | str) -> None:
+def _exit_with(prog: str, err: Exception | str, status: int = EXIT_USAGE) -> None:
     print(f"{prog}: error: {one_line(err)}", file=sys.stderr)
-    raise SystemExit(EXIT_USAGE) from None
+    raise SystemExit(status) from None

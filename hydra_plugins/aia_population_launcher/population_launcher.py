@@ -10,9 +10,10 @@ Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_
 3. runs each group as one call of the app's population entry (``task``, a dotted path; by default the one
    the app declares: for ``aia-train`` :func:`aia.apps.train.train_jobs`, which trains the group as one
    population, for ``aia-eval`` :func:`aia.apps.evaluate.evaluate_jobs`, which plans all seeds' ARVI
-   episodes in one batch), groups in parallel processes up to ``n_jobs``, each with its share of the cores
-   as its torch thread pool, the largest first (:func:`aia.training.members.population_work`: the longest
-   populations do not end up last, alone on one core);
+   episodes in one batch), groups in parallel worker processes up to ``n_jobs``, each with its share of the
+   cores as its torch thread pool, the largest first (:func:`aia.training.members.population_work`: the
+   longest populations do not end up last, alone on one core); a worker that dies fails its own population
+   only, a stop signal ends the sweep after the running populations (:mod:`.workers`);
 4. says as each population ends how many have ended, after how long, and which jobs it ran (with how many
    of them failed);
 5. returns one ``JobReturn`` per job, completed with the job's own result or failed with its own error.
@@ -24,26 +25,21 @@ scan, so the settings are not registered from here).
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
-from joblib import Parallel, delayed
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from hydra_plugins.aia_population_launcher.workers import import_entry, run_group, run_in_workers
+
 log = logging.getLogger(__name__)
-
-
-def _import(path: str) -> Callable:
-    module, _, name = path.rpartition(".")
-    return getattr(importlib.import_module(module), name)
 
 
 def group_jobs(cfgs: Sequence[DictConfig]) -> tuple[list[list[int]], list[str]]:
@@ -81,25 +77,6 @@ def largest_first(groups: list[list[int]], cfgs: Sequence[DictConfig]) -> list[l
     from aia.training.members import population_work  # imported here: see group_jobs
 
     return sorted(groups, key=lambda group: -population_work([cfgs[i] for i in group]))
-
-
-def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | None) -> list[tuple[bool, object]]:
-    """Run one population (in a worker process or in-process): ``(ok, result or error)`` per member."""
-    if threads:
-        import torch
-
-        torch.set_num_threads(threads)
-    configs = [OmegaConf.create(cfg) for cfg in cfgs]
-    try:
-        results = _import(task)(configs, [Path(d) for d in out_dirs])
-    except Exception as err:  # the whole population failed: every member's job reports it
-        return [(False, err)] * len(cfgs)
-    return [(not isinstance(r, BaseException), r) for r in results]
-
-
-def _run_numbered(index: int, *call) -> tuple[int, list[tuple[bool, object]]]:
-    """:func:`run_group` of the ``index``-th population, with its index (populations end in any order)."""
-    return index, run_group(*call)
 
 
 def _job_numbers(numbers: list[int]) -> str:
@@ -165,8 +142,8 @@ class PopulationLauncher(Launcher):
         if parallel == 1:
             finished = ((index, run_group(*call)) for index, call in enumerate(calls))
         else:  # as each population ends, whatever its place in the order
-            finished = Parallel(n_jobs=parallel, backend="loky", return_as="generator_unordered")(
-                delayed(_run_numbered)(index, *call) for index, call in enumerate(calls))
+            names = [_job_numbers([prepared[i].hydra_cfg.hydra.job.num for i in group]) for group in groups]
+            finished = run_in_workers(calls, parallel, names)
         outcomes: list[list[tuple[bool, object]]] = [[] for _ in calls]
         start = time.monotonic()
         for done, (index, results) in enumerate(finished, 1):
@@ -201,7 +178,7 @@ class PopulationLauncher(Launcher):
         check_number("hydra.launcher.n_jobs", self.n_jobs, ge=1, integer=True)
         check_flag("hydra.launcher.split_to_fill", self.split_to_fill)
         try:
-            entry = _import(task)
+            entry = import_entry(task)
         except (ImportError, AttributeError, ValueError):
             entry = None
         require(callable(entry), "hydra.launcher.task", task, "the dotted path of a population entry such as "

@@ -19,7 +19,7 @@ from aia.logging import read_run
 
 LAUNCHER = "hydra_plugins.aia_population_launcher.population_launcher.PopulationLauncher"
 SMALL = ["frames=130", "warmup_frames=100", "env.max_steps=30", "eval.episodes=2", "batch_size=16",
-         "logger.record_every_evaluations=0", "hydra/launcher=population", "hydra.launcher.n_jobs=1"]
+         "logger.record_every_evaluations=0", "hydra/launcher=population"]
 
 
 def _jobs(tmp_path, **jobs: tuple[int, list[int]]) -> list[str]:
@@ -32,9 +32,11 @@ def _jobs(tmp_path, **jobs: tuple[int, list[int]]) -> list[str]:
     return [f"hydra.searchpath=[file://{tmp_path / 'conf'}]", f"+job={','.join(jobs)}"]
 
 
-def _multirun(tmp_path, monkeypatch, capsys, *overrides: str, fails: bool = False) -> tuple[list, str]:
-    """The JobReturns of ``aia-train -m ...`` and what it printed (``fails``: Hydra reports a failed job at
-    the end of the sweep with exit status 2)."""
+def _multirun(tmp_path, monkeypatch, capsys, *overrides: str, exit_code: int | None = None, processes: int = 1
+              ) -> tuple[list, str]:
+    """The JobReturns of ``aia-train -m ...`` and what it printed (``exit_code``: the app's exit status when a
+    job fails, which Hydra reports at the end of the sweep: 2 for invalid input; ``processes``: populations at
+    a time, ``hydra.launcher.n_jobs``)."""
     returns = []
     # the launcher class Hydra's plugin scan found (the scan imports the module afresh)
     launcher = Plugins.instance().class_name_to_class[LAUNCHER]
@@ -45,12 +47,13 @@ def _multirun(tmp_path, monkeypatch, capsys, *overrides: str, fails: bool = Fals
         return returns
 
     monkeypatch.setattr(launcher, "launch", spy)
-    monkeypatch.setattr(sys, "argv", ["aia-train", "-m", f"hydra.sweep.dir={tmp_path / 'sweep'}", *SMALL, *overrides])
+    monkeypatch.setattr(sys, "argv", ["aia-train", "-m", f"hydra.sweep.dir={tmp_path / 'sweep'}", *SMALL,
+                                      f"hydra.launcher.n_jobs={processes}", *overrides])
     capsys.readouterr()
-    if fails:
+    if exit_code is not None:
         with pytest.raises(SystemExit) as info:
             train_app.main()
-        assert info.value.code == 2
+        assert info.value.code == exit_code
     else:
         train_app.main()
     return returns, capsys.readouterr().out
@@ -116,13 +119,54 @@ def test_a_sweep_over_methods_plots_grouped_by_method(tmp_path, monkeypatch, cap
 
 
 def test_a_member_with_a_bad_value_fails_alone(tmp_path, monkeypatch, capsys):
-    returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,-1", fails=True)
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,-1", exit_code=2)
     assert re.search(r"population launcher: 1/1 done after 0:\d\d: jobs 0-3, 2 failed\n", out)
     assert [r.status for r in returns] == [JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.COMPLETED,
                                            JobStatus.FAILED]
     assert "lr=-1" in str(returns[1]._return_value)
     sweep = tmp_path / "sweep"
     assert read_run(sweep / "0" / "run.mcap").complete and not (sweep / "1" / "run.mcap").exists()
+
+
+def _task_module(tmp_path, monkeypatch, name: str, body: str) -> str:
+    """A population entry ``<name>.jobs`` that runs ``body`` (Python, with ``cfgs`` at hand) before training,
+    importable in this process and in the launcher's worker processes; returns its dotted path."""
+    lines = "\n    ".join(body.splitlines())
+    (tmp_path / f"{name}.py").write_text("import os\nfrom aia.apps.train import train_jobs\n\n\n"
+                                         f"def jobs(cfgs, out_dirs):\n    {lines}\n"
+                                         "    return train_jobs(cfgs, out_dirs)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))  # a spawned worker starts with this process's sys.path
+    return f"{name}.jobs"
+
+
+def test_a_population_whose_process_dies_fails_alone_and_the_others_train(tmp_path, monkeypatch, capsys):
+    """A worker process that dies (here ``os._exit(9)``; the OOM killer's SIGKILL alike) fails its own
+    population's jobs, named in one line; the population in the other worker trains to its end."""
+    task = _task_module(tmp_path, monkeypatch, "dying", "if list(cfgs[0].hidden) == [24]:\n    os._exit(9)")
+    jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [16]), c=(2, [24]), d=(3, [24]))
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs, f"hydra.launcher.task={task}", exit_code=1,
+                             processes=2)
+    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 2 + [JobStatus.FAILED] * 2
+    died = "jobs 2-3: the process running their population exited with status 9 before returning its results"
+    assert died in str(returns[2]._return_value) and died in str(returns[3]._return_value)
+    assert re.search(r"population launcher: \d/2 done after 0:\d\d: jobs 2-3, 2 failed\n", out)
+    assert all(read_run(tmp_path / "sweep" / str(job) / "run.mcap").complete for job in (0, 1))
+
+
+def test_a_population_stopped_by_a_signal_ends_the_sweep_after_the_running_ones(tmp_path, monkeypatch, capsys):
+    """A population stopped by a signal (its members checkpointed: the app exits with 128 + signal) stops the
+    sweep as a solo run stops: the population running beside it ends, the waiting one never starts, and the
+    launcher exits with that status."""
+    # the launcher starts the largest populations first: [32] (stops at once) beside [24]; [16] waits
+    stop_at_once = "if list(cfgs[0].hidden) == [32]:\n    raise SystemExit(143)"
+    task = _task_module(tmp_path, monkeypatch, "stopping", stop_at_once)
+    jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [24]), c=(2, [32]))
+    returns, _ = _multirun(tmp_path, monkeypatch, capsys, *jobs, f"hydra.launcher.task={task}", exit_code=143,
+                           processes=2)
+    assert returns == []  # the sweep ended on the signal, as a solo run's SystemExit ends it
+    sweep = tmp_path / "sweep"
+    assert read_run(sweep / "1" / "run.mcap").complete  # ran beside the stopped one, to its end
+    assert not (sweep / "0" / "run.mcap").exists()  # waiting when the signal came: never started
 
 
 def test_a_job_that_differs_from_all_others_runs_alone_and_says_why(tmp_path, monkeypatch, capsys):

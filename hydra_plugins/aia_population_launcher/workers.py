@@ -1,0 +1,178 @@
+"""Running populations: in this process, or in worker processes that each run one population at a time.
+
+A worker that dies (killed for its memory, a segfault) fails the population it was running, and only that
+one: the launcher watches each worker's process, reports that population's jobs as failed with the worker's
+exit code, starts a fresh worker and goes on with the others. Why not joblib's loky executor (used before):
+when one of its workers dies, loky shuts the whole executor down, so every other running population died with
+it and the sweep ended in a ``TerminatedWorkerError`` traceback with no job results (measured on
+2026-12-04: a population whose process called ``os._exit(9)`` took its sibling population with it).
+
+A population stopped by a signal (SIGINT, SIGTERM or SIGUSR1 reach the workers too: each stops at the end of
+its episode with its checkpoints, :mod:`aia.training.stopping`) ends the sweep as a solo run ends: the other
+running populations stop the same way, none is started, and the launcher exits with the workers' status
+(128 + signal). A Ctrl-C that reaches only the launcher waits for the running populations to stop.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import multiprocessing
+import os
+import pickle
+import signal
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+# (ok, result or error) per member of a population
+Outcome = list[tuple[bool, object]]
+# what a population is run with: (task, member configs as dicts, job folders, torch threads or None)
+Call = tuple[str, list[dict], list[str], int | None]
+
+
+def import_entry(path: str) -> Callable:
+    """The object at dotted ``path`` (``aia.apps.train.train_jobs``)."""
+    module, _, name = path.rpartition(".")
+    return getattr(importlib.import_module(module), name)
+
+
+def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | None) -> Outcome:
+    """Run one population (in a worker process or in-process): ``(ok, result or error)`` per member.
+
+    A ``SystemExit`` (the task stopped by a signal after checkpointing) passes through."""
+    if threads:
+        # the math libraries' pools (read when they load: in a fresh worker, before torch and numpy), as
+        # joblib's workers had them, and torch's
+        for variable in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+            os.environ.setdefault(variable, str(threads))
+        import torch
+
+        torch.set_num_threads(threads)
+    configs = [OmegaConf.create(cfg) for cfg in cfgs]
+    try:
+        results = import_entry(task)(configs, [Path(d) for d in out_dirs])
+    except Exception as err:  # the whole population failed: every member's job reports it
+        return [(False, err)] * len(cfgs)
+    return [(not isinstance(r, BaseException), r) for r in results]
+
+
+def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str]) -> Iterator[tuple[int, Outcome]]:
+    """Run ``calls`` in ``processes`` worker processes, each call in the order given as a worker frees up;
+    yields ``(index of the call, its outcome)`` as each ends. A call whose worker died fails each member with
+    a :class:`~aia.errors.JobFailed` naming the call (``names``, e.g. its job numbers) and how the process
+    ended. See the module docstring for signals (a stop raises ``SystemExit`` with the workers' exit status
+    once the running calls have ended)."""
+    from aia.errors import JobFailed  # imported here: Hydra's plugin scan imports this package for every app
+
+    context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch or thread state
+    pending = list(enumerate(calls))
+    running: list[tuple[multiprocessing.Process, Connection, int]] = []  # worker, its pipe, its call's index
+    idle: list[tuple[multiprocessing.Process, Connection]] = []
+    stop_status: int | None = None
+    try:
+        while pending or running:
+            while pending and stop_status is None and len(running) < processes:
+                process, conn = idle.pop() if idle else _start_worker(context)
+                index, call = pending.pop(0)
+                conn.send((index, call))
+                running.append((process, conn, index))
+            if not running:
+                break
+            try:
+                ready = wait([conn for _, conn, _ in running] + [process.sentinel for process, _, _ in running])
+            except KeyboardInterrupt:  # the workers got it too: they stop at the end of their episodes
+                if stop_status is not None:
+                    raise
+                stop_status = 128 + signal.SIGINT
+                print("population launcher: interrupted: waiting for the running populations to checkpoint "
+                      "(Ctrl-C again kills them)", file=sys.stderr)
+                continue
+            for worker in [w for w in running if w[1] in ready or w[0].sentinel in ready]:
+                process, conn, index = worker
+                running.remove(worker)
+                kind, payload = _receive(conn)
+                if kind == "done":
+                    idle.append((process, conn))
+                    yield index, payload
+                    continue
+                process.join()
+                if kind == "stopped":
+                    stop_status = payload if stop_status is None else stop_status
+                else:
+                    error = JobFailed(f"{names[index]}: the process running their population "
+                                      f"{_exit_reason(process.exitcode)}; the other populations ran on")
+                    yield index, [(False, error)] * len(calls[index][1])
+        if stop_status is not None:
+            raise SystemExit(stop_status)
+    finally:
+        for _, conn in idle:
+            with contextlib.suppress(OSError):
+                conn.send(None)  # an idle worker ends its loop
+        for process, _ in idle:
+            process.join(timeout=60)
+        for process in [process for process, _ in idle] + [process for process, _, _ in running]:
+            if process.is_alive():  # after an error here, or a second Ctrl-C
+                process.kill()
+                process.join()
+
+
+def _receive(conn: Connection) -> tuple[str, object]:
+    """What a worker sent: ``("done", outcome)`` or ``("stopped", exit status)``; ``("died", None)`` if its
+    pipe closed without a message."""
+    try:
+        return conn.recv() if conn.poll() else ("died", None)
+    except (EOFError, OSError):
+        return "died", None
+
+
+def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:
+    """A worker process (not a daemon: inductor's compile workers are its children) and the launcher's end
+    of its pipe."""
+    here, there = context.Pipe()
+    process = context.Process(target=_serve, args=(there,), name="aia-population-worker")
+    process.start()
+    there.close()
+    return process, here
+
+
+def _serve(conn: Connection) -> None:
+    """A worker's loop: run each ``(index, call)`` received and send back ``("done", outcome)``; a task stopped
+    by a signal sends ``("stopped", exit status)`` and ends the worker; ``None`` ends it."""
+    sys.stdout.reconfigure(line_buffering=True)  # a population's lines as they come, also into a pipe or file
+    try:
+        while (message := conn.recv()) is not None:
+            _, call = message
+            try:
+                outcome = run_group(*call)
+            except SystemExit as stop:  # the task checkpointed and stopped (aia.apps.train.exit_if_stopped)
+                conn.send(("stopped", stop.code if isinstance(stop.code, int) else 1))
+                return
+            except KeyboardInterrupt:  # a task that does not handle SIGINT itself
+                conn.send(("stopped", 128 + signal.SIGINT))
+                return
+            finally:
+                sys.stdout.flush()
+            conn.send(("done", [(ok, _picklable(result)) for ok, result in outcome]))
+    except (KeyboardInterrupt, EOFError):  # interrupted between populations, or the launcher is gone
+        return
+
+
+def _picklable(result: object) -> object:
+    """``result``, or for an error that cannot be pickled a ``RuntimeError`` with its type and message."""
+    try:
+        pickle.dumps(result)
+    except Exception:
+        return RuntimeError(f"{type(result).__name__}: {result}")
+    return result
+
+
+def _exit_reason(exitcode: int | None) -> str:
+    """``"was killed by SIGKILL (out of memory?)"``, ``"exited with status 9 before returning its results"``."""
+    if exitcode is not None and exitcode < 0:
+        name = signal.Signals(-exitcode).name
+        return f"was killed by {name}" + (" (out of memory?)" if name == "SIGKILL" else "")
+    return f"exited with status {exitcode} before returning its results"
