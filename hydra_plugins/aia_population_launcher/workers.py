@@ -88,7 +88,7 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str]) 
                 if stop_status is not None:
                     raise
                 stop_status = 128 + signal.SIGINT
-                print("population launcher: interrupted: waiting for the running populations to checkpoint "
+                print("\npopulation launcher: interrupted: waiting for the running populations to checkpoint "
                       "(Ctrl-C again kills them)", file=sys.stderr)
                 continue
             for worker in [w for w in running if w[1] in ready or w[0].sentinel in ready]:
