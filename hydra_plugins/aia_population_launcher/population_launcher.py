@@ -139,19 +139,18 @@ class PopulationLauncher(Launcher):
         threads = max(1, (os.cpu_count() or 1) // parallel) if parallel > 1 else None
         calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],
                   [prepared[i].return_value for i in group], threads) for group in groups]
+        names = [_job_numbers([prepared[i].hydra_cfg.hydra.job.num for i in group]) for group in groups]
         if parallel == 1:
             finished = ((index, run_group(*call)) for index, call in enumerate(calls))
         else:  # as each population ends, whatever its place in the order
-            names = [_job_numbers([prepared[i].hydra_cfg.hydra.job.num for i in group]) for group in groups]
             finished = run_in_workers(calls, parallel, names)
         outcomes: list[list[tuple[bool, object]]] = [[] for _ in calls]
         start = time.monotonic()
         for done, (index, results) in enumerate(finished, 1):
             outcomes[index] = results
-            numbers = [prepared[i].hydra_cfg.hydra.job.num for i in groups[index]]
             failed = sum(not ok for ok, _ in results)
             print(f"population launcher: {done}/{len(calls)} done after {_minutes(time.monotonic() - start)}: "
-                  f"{_job_numbers(numbers)}" + (f", {failed} failed" if failed else ""))
+                  f"{names[index]}" + (f", {failed} failed" if failed else ""))
         for group, results in zip(groups, outcomes, strict=True):
             for index, (ok, result) in zip(group, results, strict=True):
                 prepared[index].status = JobStatus.COMPLETED if ok else JobStatus.FAILED

@@ -18,7 +18,6 @@ from __future__ import annotations
 import contextlib
 import importlib
 import multiprocessing
-import os
 import pickle
 import signal
 import sys
@@ -45,10 +44,6 @@ def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | N
 
     A ``SystemExit`` (the task stopped by a signal after checkpointing) passes through."""
     if threads:
-        # the math libraries' pools (read when they load: in a fresh worker, before torch and numpy), as
-        # joblib's workers had them, and torch's
-        for variable in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-            os.environ.setdefault(variable, str(threads))
         import torch
 
         torch.set_num_threads(threads)
@@ -78,7 +73,7 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str]) 
             while pending and stop_status is None and len(running) < processes:
                 process, conn = idle.pop() if idle else _start_worker(context)
                 index, call = pending.pop(0)
-                conn.send((index, call))
+                conn.send(call)
                 running.append((process, conn, index))
             if not running:
                 break
@@ -140,12 +135,11 @@ def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:
 
 
 def _serve(conn: Connection) -> None:
-    """A worker's loop: run each ``(index, call)`` received and send back ``("done", outcome)``; a task stopped
-    by a signal sends ``("stopped", exit status)`` and ends the worker; ``None`` ends it."""
+    """A worker's loop: run each call received and send back ``("done", outcome)``; a task stopped by a
+    signal sends ``("stopped", exit status)`` and ends the worker; ``None`` ends it."""
     sys.stdout.reconfigure(line_buffering=True)  # a population's lines as they come, also into a pipe or file
     try:
-        while (message := conn.recv()) is not None:
-            _, call = message
+        while (call := conn.recv()) is not None:
             try:
                 outcome = run_group(*call)
             except SystemExit as stop:  # the task checkpointed and stopped (aia.apps.train.exit_if_stopped)
