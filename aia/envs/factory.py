@@ -13,12 +13,13 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
-from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs import Compose
 
 import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's ConfigStore)
 from aia.checks import check_choice
 from aia.envs.config import TrackingConfig
 from aia.envs.tracking import TargetTrackingEnv
+from aia.envs.transformed import TrackingTransformedEnv
 from aia.errors import ConfigError, one_line
 from aia.transforms import BeliefFeatures, InfoReward
 
@@ -76,7 +77,7 @@ def make_env(
     transforms: bool = True,
     validate_actions: bool = True,
     compile: bool = False,
-) -> TransformedEnv | TargetTrackingEnv:
+) -> TrackingTransformedEnv | TargetTrackingEnv:
     """A batched tracking env for a preset name (``"obstacles1"``) or a config, with the belief-feature and
     reward transforms composed on (``transforms=False`` returns the raw env). ``compile=True`` runs the
     step and the transforms through ``torch.compile``."""
@@ -90,4 +91,4 @@ def make_env(
     env = TargetTrackingEnv(
         config, batch_size=batch_size, device=device, seed=seed, validate_actions=validate_actions, compile_step=compile
     )
-    return TransformedEnv(env, make_transforms(config, compile)) if transforms else env
+    return TrackingTransformedEnv(env, make_transforms(config, compile)) if transforms else env

@@ -55,27 +55,41 @@ def episode_keys(world_key: Tensor, episode: Tensor) -> Tensor:
     return mix32(world_key ^ mix32((episode + _GOLDEN) & _MASK32))
 
 
-def random_bits(key: Tensor, counter: Tensor, stream: int, n: int) -> Tensor:
+def random_bits(key: Tensor, counter: Tensor, stream: int, n: int, slots: Tensor | None = None) -> Tensor:
     """``[B, n]`` int64 tensor of 32 random bits for each world's (key, counter, stream) and slot 0..n-1.
 
     ``key`` and ``counter`` are ``[B]`` int64 tensors; ``stream`` separates the draws made for different
     purposes within the same step; ``counter`` is normally the world's step index within its episode.
     """
-    slot = torch.arange(n, dtype=torch.int64, device=key.device)
+    slots = slot_keys(n, key.device) if slots is None else slots
+    if slots.shape != (n,):
+        raise ValueError(f"slots shaped {tuple(slots.shape)} for {n} draws (slot_keys({n}))")
     step_key = mix32(key ^ mix32((counter * 0x10001 + stream * 0x3C6EF372 + _GOLDEN) & _MASK32))
-    return mix32(step_key.unsqueeze(-1) ^ mix32(slot + _GOLDEN))
+    return mix32(step_key.unsqueeze(-1) ^ slots)
 
 
-def uniform(key: Tensor, counter: Tensor, stream: int, n: int, dtype: torch.dtype = torch.float32) -> Tensor:
+def slot_keys(n: int, device: torch.device | str = "cpu") -> Tensor:
+    """``[n]`` the hashed slot indices that :func:`random_bits` mixes into each draw.
+
+    A caller whose draws run inside ``torch.compile`` passes them in (computed once): traced, ``arange(n) +
+    0x9E3779B9`` becomes an index expression that torch 2.11's Triton code generation types as int32, and the
+    compile fails ("Scalar 2654435769 is out of range for type int32", seen on an H200 on 2026-12-04)."""
+    return mix32(torch.arange(n, dtype=torch.int64, device=device) + _GOLDEN)
+
+
+def uniform(key: Tensor, counter: Tensor, stream: int, n: int, dtype: torch.dtype = torch.float32,
+            slots: Tensor | None = None) -> Tensor:
     """``[B, n]`` uniforms in [0, 1) with 24 random bits each (exact in float32)."""
-    bits = random_bits(key, counter, stream, n) >> 8
+    bits = random_bits(key, counter, stream, n, slots) >> 8
     return bits.to(dtype) * (1.0 / (1 << 24))
 
 
-def normal(key: Tensor, counter: Tensor, stream: int, n: int, dtype: torch.dtype = torch.float32) -> Tensor:
-    """``[B, n]`` standard normals by the Box-Muller transform of ``2 * ceil(n / 2)`` uniforms."""
+def normal(key: Tensor, counter: Tensor, stream: int, n: int, dtype: torch.dtype = torch.float32,
+           slots: Tensor | None = None) -> Tensor:
+    """``[B, n]`` standard normals by the Box-Muller transform of ``2 * ceil(n / 2)`` uniforms (``slots``:
+    ``slot_keys(2 * ceil(n / 2))``, or ``None``)."""
     half = (n + 1) // 2
-    u = uniform(key, counter, stream, 2 * half, dtype)
+    u = uniform(key, counter, stream, 2 * half, dtype, slots)
     radius = torch.sqrt(-2.0 * torch.log1p(-u[:, :half]))  # 1 - u lies in (0, 1]: no log(0)
     angle = (2.0 * math.pi) * u[:, half:]
     return torch.cat((radius * torch.cos(angle), radius * torch.sin(angle)), dim=-1)[:, :n]

@@ -111,6 +111,7 @@ class TargetTrackingEnv(EnvBase):
         )
         self.meas_std = torch.tensor([config.sensor.range_std, config.sensor.bearing_std], dtype=fdt, device=dev)
         self.log_det_cap = math.log(config.belief.det_cap) if config.belief.det_cap is not None else math.inf
+        self._step_slots = rng.slot_keys(8 * self.num_targets, dev)  # the step's noise draws (rng.slot_keys)
         self._advance_fn = compiled(self._advance) if compile_step else self._advance
         self._make_specs()
         self._init_state()
@@ -161,6 +162,9 @@ class TargetTrackingEnv(EnvBase):
         B, dev = self.batch_size[0], self.device
         self.state = self.observation_spec.zero()  # placeholder until the first reset
         self._step_count = torch.zeros(B, dtype=torch.int64, device=dev)
+        # On the host: no world has taken more steps since its reset (the max of _step_count, exact after each
+        # reset). It tells whether a world can be done (the time limit) without reading the device.
+        self._steps_bound = 0
         self._episode = torch.zeros(B, dtype=torch.int64, device=dev)
         self._episode_key = torch.zeros(B, dtype=torch.int64, device=dev)
 
@@ -212,12 +216,19 @@ class TargetTrackingEnv(EnvBase):
         self._episode += mask
         self._episode_key = torch.where(mask, rng.episode_keys(self._world_key, self._episode), self._episode_key)
         self._step_count.masked_fill_(mask, 0)
+        # a partial reset reads the step counts back (one device sync per reset, not per step)
+        self._steps_bound = 0 if tensordict is None or "_reset" not in tensordict else int(self._step_count.max())
         fresh = self._initial_state()
         self.state = _select(mask, fresh, self.state)
         out = self.state.clone()
         zeros = torch.zeros(B, 1, dtype=torch.bool, device=self.device)
         out.update({"done": zeros, "terminated": zeros.clone(), "truncated": zeros.clone()})
         return out
+
+    def all_running(self) -> bool:
+        """Whether every world is inside its episode: none has reached the time limit (the env's only end of an
+        episode), so none is done. Known on the host: asking costs no device sync."""
+        return self._steps_bound < self.config.max_steps
 
     def _initial_state(self) -> TensorDict:
         """A fresh episode for every world (the caller keeps the worlds that are not reset)."""
@@ -272,6 +283,7 @@ class TargetTrackingEnv(EnvBase):
         if self.validate_actions:
             _check_actions(action, self.primitives.shape[0])
         self._step_count += 1
+        self._steps_bound += 1
         state = self.state
         *fields, reward, truncated = self._advance_fn(
             state["robot_pose"], state["target_state"], state["belief_mean"], state["belief_cov"],
@@ -294,7 +306,7 @@ class TargetTrackingEnv(EnvBase):
         """
         cfg, geom = self.config, self.geometry
         N = self.num_targets
-        noise = rng.normal(key, step, _STEP_STREAM, 8 * N, self.dtype).unflatten(-1, (N, 8))
+        noise = rng.normal(key, step, _STEP_STREAM, 8 * N, self.dtype, self._step_slots).unflatten(-1, (N, 8))
 
         # Robot: a colliding move (or, in the 2019 rule, one too close to the targets) keeps the position;
         # the heading turns either way.
@@ -366,7 +378,9 @@ def _check_actions(action: Tensor, num_actions: int) -> None:
     if action.dtype.is_floating_point or action.dtype == torch.bool:
         raise ValueError(f"action must hold integer indices in [0, {num_actions - 1}], got dtype {action.dtype}")
     bad = (action < 0) | (action >= num_actions)
-    if bad.any():
+    if action.device.type != "cpu":  # checked on the device: reading the flag back would sync every step
+        torch._assert_async(~bad.any(), f"an action is out of range: allowed indices are 0..{num_actions - 1}")
+    elif bad.any():
         raise ValueError(
             f"action {action[bad][0].item()} is out of range: allowed indices are 0..{num_actions - 1} "
             f"(motion primitive a = 3 * i_v + i_w)"

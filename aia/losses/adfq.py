@@ -114,12 +114,14 @@ def adfq_posterior(
     c_mean = mean.to(f64).unsqueeze(-1)  # [..., 1]
     c_var = var.to(f64).unsqueeze(-1)
     rew = torch.as_tensor(reward, dtype=f64, device=device)
-    gam = torch.as_tensor(gamma, dtype=f64, device=device)
+    # a Python discount stays a Python number: a tensor made of it would be a host-to-device copy (on CUDA, a
+    # sync every update); as a float64 operand it rounds the same
+    gam = gamma if isinstance(gamma, (int, float)) else torch.as_tensor(gamma, dtype=f64, device=device).unsqueeze(-1)
     num_actions = n_mean.shape[-1]
 
     # TD targets of every next action and the Gaussian product of each with the current belief.
-    t_mean = rew.unsqueeze(-1) + gam.unsqueeze(-1) * n_mean  # [..., A]
-    t_var = gam.unsqueeze(-1) ** 2 * n_var
+    t_mean = rew.unsqueeze(-1) + gam * n_mean  # [..., A]
+    t_var = gam**2 * n_var
     t_var_noisy = t_var + noise
     bar_var = 1.0 / (1.0 / c_var + 1.0 / t_var_noisy)
     bar_mean = bar_var * (c_mean / c_var + t_mean / t_var_noisy)

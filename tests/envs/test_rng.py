@@ -232,3 +232,13 @@ def test_seed_keys_of_different_purposes_are_apart_from_each_other_and_from_the_
     u2 = rng.uniform(by_purpose[2], counter, 0, 200, torch.float64).flatten()
     assert abs(np.corrcoef(u1.numpy(), u2.numpy())[0, 1]) < 5 / math.sqrt(u1.numel())
     assert torch.equal(rng.seed_keys(seeds, 3, device="cpu"), by_purpose[3])
+
+
+def test_slot_keys_passed_in_give_the_same_bits_and_a_wrong_count_is_refused():
+    key, counter = rng.world_keys(5, 3), torch.tensor([0, 7, 2**33])
+    slots = rng.slot_keys(6)
+    assert torch.equal(rng.random_bits(key, counter, 1, 6, slots), rng.random_bits(key, counter, 1, 6))
+    normals = rng.normal(key, counter, 2, 5, torch.float64, slots)
+    assert torch.equal(normals, rng.normal(key, counter, 2, 5, torch.float64))
+    with pytest.raises(ValueError, match=r"slots shaped \(6,\) for 4 draws"):
+        rng.random_bits(key, counter, 1, 4, slots)

@@ -1,0 +1,32 @@
+"""``TrackingTransformedEnv``: the tracking env with its feature and reward transforms, stepped without a
+device sync.
+
+TorchRL's ``EnvBase.maybe_reset`` (what a collector's and a non-stopping rollout's ``step_and_maybe_reset``
+call after every step) asks ``any_done``, which reads ``done.any()`` back to the host: on CUDA a
+synchronisation every step. The tracking env knows on the host when no world can be done
+(:meth:`TargetTrackingEnv.all_running`: its episodes end at the time limit only), so this env answers
+``False`` then without reading the device, and asks TorchRL otherwise (once an episode).
+"""
+
+from __future__ import annotations
+
+from tensordict import TensorDictBase
+from torchrl.envs import ExcludeTransform, SelectTransform, TransformedEnv
+
+from aia.transforms import BeliefFeatures, InfoReward
+
+# transforms that write no done entry (the key filters at most drop one): with only these, no world is done
+# while the base env says so (the training loop appends a SelectTransform)
+_DONE_PRESERVING = (BeliefFeatures, InfoReward, SelectTransform, ExcludeTransform)
+
+
+class TrackingTransformedEnv(TransformedEnv):
+    """A ``TransformedEnv`` over :class:`~aia.envs.tracking.TargetTrackingEnv` whose ``any_done`` costs no
+    device sync while every world is inside its episode. A transform appended later that is not one of the
+    feature and reward transforms or a key filter (a ``StepCounter`` may end episodes) turns the shortcut off."""
+
+    def any_done(self, tensordict: TensorDictBase) -> bool:
+        """As ``EnvBase.any_done`` (and writes ``"_reset"`` the same way when a world is done)."""
+        if self.base_env.all_running() and all(isinstance(t, _DONE_PRESERVING) for t in self.transform):
+            return False
+        return super().any_done(tensordict)
