@@ -53,19 +53,32 @@ class _TimedPhase:
         self.timer.add(self.phase, time.perf_counter() - self.start)
 
 
-def sgemm_gflops(size: int = 1024, calls: int = 30) -> float:
-    """The machine's float32 matmul rate now, in GFLOP/s, on torch's current threads: ``calls`` products of two
-    ``size x size`` matrices after three warm-up products. The ceiling of a batched update, and a gauge of a
-    shared VM's speed at the hour a timing was taken (on the project's 2-core VM it swings by up to 3x)."""
+def sgemm_gflops(size: int | None = None, calls: int = 30, device: str = "cpu") -> float:
+    """The machine's float32 matmul rate now, in GFLOP/s, on torch's current threads (or ``device``'s GPU):
+    ``calls`` products of two ``size x size`` matrices (1,024 on a CPU, 8,192 on a GPU) after three warm-up
+    products. The ceiling of a batched update, and a gauge of a shared VM's speed at the hour a timing was
+    taken (on the project's 2-core VM it swings by up to 3x)."""
     import torch  # here: the phase timer itself needs no torch
 
-    a, b = torch.randn(size, size), torch.randn(size, size)
+    on_gpu = torch.device(device).type == "cuda"
+    size = size or (8192 if on_gpu else 1024)
+    a, b = torch.randn(size, size, device=device), torch.randn(size, size, device=device)
     for _ in range(3):
         a @ b
+    synchronize(device)
     start = time.perf_counter()
     for _ in range(calls):
         a @ b
+    synchronize(device)
     return 2 * size**3 * calls / (time.perf_counter() - start) / 1e9
+
+
+def synchronize(device: str) -> None:
+    """Wait for ``device``'s queued work (a GPU's kernels run after their launch returns); nothing on a CPU."""
+    import torch
+
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,12 @@
    ``REV`` (the solo loop before this change, extracted with ``git archive``) and of the working tree, in the
    same run, so that P = 1 of the new loop is compared with the old loop on the same machine the same hour.
 
+On a GPU (``--device cuda``) the matmul rate is that GPU's (8,192-square float32 products), the products are
+timed there, and part 2 is left out (the alternatives were weighed on the CPU). ``--count-syncs P`` first
+trains a P-member job per learner and mode under ``torch.cuda.set_sync_debug_mode("warn")`` and prints every
+host-device synchronisation by the line that asked (``count_syncs``): a site counted about once per frame
+stalls every step.
+
 ``--inner-dtypes float32,bfloat16`` adds rows with the hidden-to-hidden matmuls in bfloat16 (``inner_dtype``,
 ``conf/train.yaml``), each against P = 1 of its own dtype; ``--algos adfq`` keeps one learner.
 
@@ -39,11 +45,13 @@ Prints a table and writes JSON (default ``benchmarks/results/population_<device>
     python benchmarks/population.py --members 1,5,20 --modes eager --baseline 54a9a5a
     python benchmarks/population.py --algos adfq --modes compiled --members 1,5 --inner-dtypes float32,bfloat16
     python benchmarks/population.py --algos dqn --modes compiled --members 1,20 --repeats 3 --frames 600
+    python benchmarks/population.py --device cuda --modes eager --members 1,20,80,320 --count-syncs 4
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import itertools
 import json
 import os
@@ -53,6 +61,8 @@ import subprocess
 import sys
 import tempfile
 import time
+import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -64,7 +74,7 @@ from torchrl.objectives import DQNLoss
 from aia.envs import make_env
 from aia.modules import make_q_network
 from aia.modules.q_networks import make_qvalue_actor
-from aia.timing import sgemm_gflops
+from aia.timing import sgemm_gflops, synchronize
 from aia.training import train_population
 from aia.training.components import make_loss, make_stacked_network
 
@@ -89,13 +99,16 @@ def _widths(algo: str) -> list[int]:
     return [obs, *hidden, 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS]
 
 
-def _ms_per_call(fn: Callable[[], object], repeats: int, warmup: int) -> float:
-    """Milliseconds per call of ``fn``, over ``repeats`` calls after ``warmup`` untimed ones."""
+def _ms_per_call(fn: Callable[[], object], repeats: int, warmup: int, device: str = "cpu") -> float:
+    """Milliseconds per call of ``fn``, over ``repeats`` calls after ``warmup`` untimed ones (a GPU's queued
+    kernels waited for at both ends)."""
     for _ in range(warmup):
         fn()
+    synchronize(device)
     start = time.perf_counter()
     for _ in range(repeats):
         fn()
+    synchronize(device)
     return 1e3 * (time.perf_counter() - start) / repeats
 
 
@@ -147,7 +160,60 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
             "ms_per_step_by_phase": split}
 
 
-def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", repeats: int = 50) -> float:
+def count_syncs(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str) -> dict:
+    """The host-device synchronisations of one ``warmup + frames``-frame population job on CUDA, by the line
+    that asked for each (``torch.cuda.set_sync_debug_mode("warn")``: every synchronising call warns, and the
+    warning's Python stack names the TorchRL, tensordict or aia line, and the innermost aia line under it). A
+    site counted about once per frame syncs every step; the others sync per episode, evaluation or log."""
+    experiment, exploration, _, _ = ROWS[algo]
+    switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
+    cfgs = [_config(f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
+                    f"device={device}", f"warmup_frames={warmup}", f"frames={warmup + frames}", f"seed={seed}",
+                    *switches) for seed in range(members)]
+    sites: collections.Counter[str] = collections.Counter()
+
+    def record(message, category, filename, lineno, file=None, line=None) -> None:
+        if "synchroniz" not in str(message):
+            return
+        frames_ = [f for f in traceback.extract_stack()[:-1]
+                   if any(f"/{package}/" in f.filename for package in ("aia", "torchrl", "tensordict"))]
+        if not frames_:
+            sites["(outside aia, TorchRL and tensordict)"] += 1
+            return
+        ours = next((f for f in reversed(frames_) if "/aia/" in f.filename), None)
+        site = _frame_name(frames_[-1])
+        if ours is not None and ours is not frames_[-1]:
+            site += f" <- {_frame_name(ours)}"
+        sites[site] += 1
+
+    with tempfile.TemporaryDirectory() as out, warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = record
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            states = train_population(cfgs, [Path(out) / str(seed) for seed in range(members)])
+        finally:
+            torch.cuda.set_sync_debug_mode(0)
+    state = states[0]
+    return {"kind": "syncs", "algo": algo, "members": members, "compiled": compile, "device": device,
+            "frames": state.frames, "updates": state.updates, "episodes": state.episodes,
+            "evaluations": state.evaluations, "syncs": sum(sites.values()),
+            "sites": [{"site": site, "count": count} for site, count in sites.most_common()]}
+
+
+def _frame_name(frame: traceback.FrameSummary) -> str:
+    """``package/module.py:line function`` of a stack frame in aia, TorchRL or tensordict."""
+    path = frame.filename
+    for package in ("aia", "torchrl", "tensordict"):
+        index = path.rfind(f"/{package}/")
+        if index >= 0:
+            path = path[index + 1:]
+            break
+    return f"{path}:{frame.lineno} {frame.name}"
+
+
+def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", repeats: int = 50,
+                      device: str = "cpu") -> float:
     """ms of one update's batched products alone, ``members`` members (eager ``torch.bmm`` on the loop's shapes,
     batch 64: the online network's forward, for DQN the target network's forward on s' (ADFQ's targets come
     from its cache), and the backward's weight and input gradients; the layers between two hidden layers in
@@ -160,6 +226,7 @@ def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", rep
         dtype = getattr(torch, inner_dtype) if inner else torch.float32
         layers.append(tuple(torch.randn(shape, generator=generator).to(dtype) for shape in
                             ((members, fan_in, fan_out), (members, BATCH, fan_in), (members, BATCH, fan_out))))
+    layers = [tuple(tensor.to(device) for tensor in layer) for layer in layers]
     forwards = 2 if algo == "dqn" else 1
 
     def products() -> None:
@@ -171,7 +238,7 @@ def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", rep
             if index:
                 torch.bmm(grad, weight.transpose(1, 2))
 
-    return _ms_per_call(products, repeats, warmup=10)
+    return _ms_per_call(products, repeats, warmup=10, device=device)
 
 
 def _median_run(runs: list[dict], solo_runs: list[dict | None]) -> dict:
@@ -255,6 +322,8 @@ def main() -> None:
                         help="rounds of every population size; rows give the median and the range, and the ratio "
                              "to P = 1 of the same round")
     parser.add_argument("--baseline", default=None, help="git commit of the solo loop to compare P = 1 with")
+    parser.add_argument("--count-syncs", type=int, default=0, metavar="P",
+                        help="on CUDA: first count the host-device syncs of a P-member population's job, by site")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     sizes = [int(p) for p in args.members.split(",")]
@@ -266,9 +335,33 @@ def main() -> None:
         parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ROWS)}")
     if not set(dtypes) <= {"float32", "bfloat16"}:
         parser.error(f"--inner-dtypes {args.inner_dtypes!r}: expected a comma-separated subset of float32,bfloat16")
+    on_gpu = torch.device(args.device).type == "cuda"
+    if args.count_syncs and not on_gpu:
+        parser.error(f"--count-syncs {args.count_syncs}: counts CUDA syncs, so it needs --device cuda "
+                     f"(got {args.device!r})")
 
-    gflops_before = sgemm_gflops()
+    out = args.out or HERE / "results" / f"population_{args.device.split(':')[0]}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    gflops_before = sgemm_gflops(device=args.device)
+    meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
+            "gpu": torch.cuda.get_device_name(args.device) if on_gpu else None,
+            "load_average_1_5_15min": os.getloadavg(), "sgemm_gflops_before": gflops_before,
+            "flops_per_member_frame": {algo: flops_per_member_frame(algo) for algo in ROWS}}
     rows = []
+
+    def save() -> None:  # after every row: a run stopped half-way keeps what it measured
+        out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
+
+    if args.count_syncs:
+        for algo, mode in itertools.product(algos, modes):
+            row = count_syncs(algo, args.count_syncs, mode == "compiled", args.warmup, args.frames, args.device)
+            rows.append(row)
+            save()
+            print(f"host-device syncs of {algo} {mode} P={args.count_syncs}: {row['syncs']} in {row['frames']} "
+                  f"frames ({row['updates']} updates, {row['episodes']} episodes, {row['evaluations']} "
+                  "evaluations)", flush=True)
+            for site in row["sites"]:
+                print(f"  {site['count']:>6}  {site['site']}", flush=True)
     print(f"{'algo':<6}{'network':<13}{'mode':<10}{'inner':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
           f"{'x P=1 (range)':<16}{'with eval':>11}{'% of matmul peak':>18}{'products':>10}"
           f"  ms per step by phase")
@@ -281,8 +374,9 @@ def main() -> None:
             row = _median_run([r[members] for r in rounds], [r.get(1) for r in rounds])
             row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(algo) / (
                 gflops_before * 1e9)
-            row["update_matmuls_ms"] = update_matmuls_ms(algo, members, dtype)
+            row["update_matmuls_ms"] = update_matmuls_ms(algo, members, dtype, device=args.device)
             rows.append(row)
+            save()
             rates = row["member_frames_per_s_runs"]
             spread = f" ({min(rates):,.0f}-{max(rates):,.0f})" if len(rates) > 1 else ""
             ratios = row["speedup_over_p1_runs"]
@@ -296,12 +390,14 @@ def main() -> None:
                   f"{speedup:<16}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
                   f"{100 * row['share_of_sgemm_peak']:>17.1f}%{row['update_matmuls_ms']:>10.2f}  {phases}",
                   flush=True)
-    print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
-          f"{'stacked network ms':>20}")
-    for members in (1, 20):
-        row = measure_vmap_update(members)
-        rows.append(row)
-        print(f"{'':<50}{members:>4}{row['vmap_dqn_loss_ms']:>18.2f}{row['stacked_network_ms']:>20.2f}", flush=True)
+    if not on_gpu:  # the alternatives were weighed on the CPU (a GPU runs the loop's choice)
+        print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
+              f"{'stacked network ms':>20}")
+        for members in (1, 20):
+            row = measure_vmap_update(members)
+            rows.append(row)
+            print(f"{'':<50}{members:>4}{row['vmap_dqn_loss_ms']:>18.2f}{row['stacked_network_ms']:>20.2f}",
+                  flush=True)
     if args.baseline:
         print(f"\nsolo loop before ({args.baseline}) and now, updating frames/s (train_throughput.py --parts loop)")
         for row in measure_solo_loops(args.baseline, 2000, 3):
@@ -311,14 +407,8 @@ def main() -> None:
             print(f"  {row['code']:<10}{row['algo']:<6}{mode:<10}{row['updating_frames_per_s']:>8,.0f} ({runs})",
                   flush=True)
 
-    out = args.out or HERE / "results" / f"population_{args.device.split(':')[0]}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
-            "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
-            "load_average_1_5_15min": os.getloadavg(),
-            "sgemm_gflops_before": gflops_before, "sgemm_gflops_after": sgemm_gflops(),
-            "flops_per_member_frame": {algo: flops_per_member_frame(algo) for algo in ROWS}}
-    out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
+    meta["sgemm_gflops_after"] = sgemm_gflops(device=args.device)
+    save()
     print(f"wrote {out}")
 
 
