@@ -39,7 +39,6 @@ from torchrl.collectors import Collector
 from torchrl.envs import SelectTransform
 from torchrl.objectives import HardUpdate
 from torchrl.record.loggers import Logger
-from tqdm import tqdm
 
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
@@ -67,6 +66,7 @@ from aia.training.components import (
 )
 from aia.training.members import check_population
 from aia.training.optimizer import StackedAdam, Updater
+from aia.training.progress import progress_bar
 from aia.training.replay import MemberReplay
 from aia.training.resuming import load_resumable, resume_path
 from aia.training.stopping import StopOnSignals
@@ -199,8 +199,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     timer = PhaseTimer(shared.seconds)  # updates shared.seconds in place
     measured_before = sum(shared.seconds.values())
     start = time.perf_counter()
-    bar = tqdm(total=cfg.frames, initial=shared.frames, unit="frame", unit_scale=True, mininterval=1.0,
-               desc=_description(cfgs))
+    bar = progress_bar(cfg.frames, shared.frames, _description(cfgs))
     batches = iter(collector)
     in_keys = loss.in_keys
     # Python's full collections walk every object, and torch (and compiling) leave about half a million of them:

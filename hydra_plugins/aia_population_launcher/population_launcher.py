@@ -37,6 +37,7 @@ from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from hydra_plugins.aia_population_launcher.display import PopulationDisplay
 from hydra_plugins.aia_population_launcher.workers import import_entry, run_group, run_in_workers
 
 log = logging.getLogger(__name__)
@@ -140,17 +141,22 @@ class PopulationLauncher(Launcher):
         calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],
                   [prepared[i].return_value for i in group], threads) for group in groups]
         names = [_job_numbers([prepared[i].hydra_cfg.hydra.job.num for i in group]) for group in groups]
+        display = PopulationDisplay(names, parallel)
         if parallel == 1:
             finished = ((index, run_group(*call)) for index, call in enumerate(calls))
-        else:  # as each population ends, whatever its place in the order
-            finished = run_in_workers(calls, parallel, names)
+        else:  # as each population ends, whatever its place in the order; one bar per running population
+            finished = run_in_workers(calls, parallel, names, display)
         outcomes: list[list[tuple[bool, object]]] = [[] for _ in calls]
         start = time.monotonic()
-        for done, (index, results) in enumerate(finished, 1):
-            outcomes[index] = results
-            failed = sum(not ok for ok, _ in results)
-            print(f"population launcher: {done}/{len(calls)} done after {_minutes(time.monotonic() - start)}: "
-                  f"{names[index]}" + (f", {failed} failed" if failed else ""))
+        try:
+            for done, (index, results) in enumerate(finished, 1):
+                outcomes[index] = results
+                failed = sum(not ok for ok, _ in results)
+                display.write(f"population launcher: {done}/{len(calls)} done after "
+                              f"{_minutes(time.monotonic() - start)}: {names[index]}"
+                              + (f", {failed} failed" if failed else ""))
+        finally:
+            display.close()
         for group, results in zip(groups, outcomes, strict=True):
             for index, (ok, result) in zip(group, results, strict=True):
                 prepared[index].status = JobStatus.COMPLETED if ok else JobStatus.FAILED

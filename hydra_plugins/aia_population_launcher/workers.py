@@ -7,6 +7,9 @@ when one of its workers dies, loky shuts the whole executor down, so every other
 it and the sweep ended in a ``TerminatedWorkerError`` traceback with no job results (measured on
 2026-12-04: a population whose process called ``os._exit(9)`` took its sibling population with it).
 
+A worker forwards what its population prints and its training bar's state through its pipe (the launcher
+shows them, :mod:`.display`), so that several populations' bars and lines do not overwrite each other.
+
 A population stopped by a signal (SIGINT, SIGTERM or SIGUSR1 reach the workers too: each stops at the end of
 its episode with its checkpoints, :mod:`aia.training.stopping`) ends the sweep as a solo run ends: the other
 running populations stop the same way, none is started, and the launcher exits with the workers' status
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import io
 import multiprocessing
 import pickle
 import signal
@@ -26,6 +30,8 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 
 from omegaconf import OmegaConf
+
+from hydra_plugins.aia_population_launcher.display import PopulationDisplay
 
 # (ok, result or error) per member of a population
 Outcome = list[tuple[bool, object]]
@@ -55,12 +61,13 @@ def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | N
     return [(not isinstance(r, BaseException), r) for r in results]
 
 
-def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str]) -> Iterator[tuple[int, Outcome]]:
+def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], display: PopulationDisplay
+                   ) -> Iterator[tuple[int, Outcome]]:
     """Run ``calls`` in ``processes`` worker processes, each call in the order given as a worker frees up;
-    yields ``(index of the call, its outcome)`` as each ends. A call whose worker died fails each member with
-    a :class:`~aia.errors.JobFailed` naming the call (``names``, e.g. its job numbers) and how the process
-    ended. See the module docstring for signals (a stop raises ``SystemExit`` with the workers' exit status
-    once the running calls have ended)."""
+    yields ``(index of the call, its outcome)`` as each ends. What the workers print and their progress go to
+    ``display``. A call whose worker died fails each member with a :class:`~aia.errors.JobFailed` naming the
+    call (``names``, e.g. its job numbers) and how the process ended. See the module docstring for signals (a
+    stop raises ``SystemExit`` with the workers' exit status once the running calls have ended)."""
     from aia.errors import JobFailed  # imported here: Hydra's plugin scan imports this package for every app
 
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch or thread state
@@ -88,8 +95,13 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str]) 
                 continue
             for worker in [w for w in running if w[1] in ready or w[0].sentinel in ready]:
                 process, conn, index = worker
+                kind, payload = _receive(conn, index, display)
+                if kind is None:  # only progress so far
+                    if process.is_alive():
+                        continue
+                    kind = "died"
                 running.remove(worker)
-                kind, payload = _receive(conn)
+                display.finish(index)
                 if kind == "done":
                     idle.append((process, conn))
                     yield index, payload
@@ -115,13 +127,22 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str]) 
                 process.join()
 
 
-def _receive(conn: Connection) -> tuple[str, object]:
-    """What a worker sent: ``("done", outcome)`` or ``("stopped", exit status)``; ``("died", None)`` if its
-    pipe closed without a message."""
+def _receive(conn: Connection, index: int, display: PopulationDisplay) -> tuple[str | None, object]:
+    """What a worker sent: its printed lines and progress (shown on ``display`` as population ``index``'s),
+    then ``("done", outcome)`` or ``("stopped", exit status)``; ``("died", None)`` if its pipe closed without
+    one, ``(None, None)`` if nothing more has come yet."""
     try:
-        return conn.recv() if conn.poll() else ("died", None)
+        while conn.poll():
+            kind, payload = conn.recv()
+            if kind == "print":
+                display.write(payload)
+            elif kind == "progress":
+                display.progress(index, payload)
+            else:
+                return kind, payload
     except (EOFError, OSError):
         return "died", None
+    return None, None
 
 
 def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:
@@ -137,22 +158,56 @@ def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:
 def _serve(conn: Connection) -> None:
     """A worker's loop: run each call received and send back ``("done", outcome)``; a task stopped by a
     signal sends ``("stopped", exit status)`` and ends the worker; ``None`` ends it."""
-    sys.stdout.reconfigure(line_buffering=True)  # a population's lines as they come, also into a pipe or file
+    from aia.training.progress import forwarding  # the worker's own import of aia (see run_in_workers)
+
+    sys.stdout.reconfigure(line_buffering=True)  # what is printed between populations, as it comes
     try:
         while (call := conn.recv()) is not None:
             try:
-                outcome = run_group(*call)
+                with forwarding(lambda state: conn.send(("progress", state))), _LinesTo(conn) as lines:
+                    try:
+                        outcome = run_group(*call)
+                    finally:
+                        lines.flush()
             except SystemExit as stop:  # the task checkpointed and stopped (aia.apps.train.exit_if_stopped)
                 conn.send(("stopped", stop.code if isinstance(stop.code, int) else 1))
                 return
             except KeyboardInterrupt:  # a task that does not handle SIGINT itself
                 conn.send(("stopped", 128 + signal.SIGINT))
                 return
-            finally:
-                sys.stdout.flush()
             conn.send(("done", [(ok, _picklable(result)) for ok, result in outcome]))
     except (KeyboardInterrupt, EOFError):  # interrupted between populations, or the launcher is gone
         return
+
+
+class _LinesTo(io.TextIOBase):
+    """``sys.stdout`` of a worker while it runs a population: each complete line printed goes to the launcher
+    as ``("print", line)`` (the rest of a line waits for its end, or for :meth:`flush`)."""
+
+    def __init__(self, conn: Connection) -> None:
+        self.conn = conn
+        self._partial = ""
+
+    def __enter__(self) -> _LinesTo:
+        self._stdout, sys.stdout = sys.stdout, self
+        return self
+
+    def __exit__(self, *exc) -> None:
+        sys.stdout = self._stdout
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        *lines, self._partial = (self._partial + text).split("\n")
+        for line in lines:
+            self.conn.send(("print", line))
+        return len(text)
+
+    def flush(self) -> None:
+        if self._partial:
+            self.conn.send(("print", self._partial))
+            self._partial = ""
 
 
 def _picklable(result: object) -> object:

@@ -151,6 +151,9 @@ def test_a_population_whose_process_dies_fails_alone_and_the_others_train(tmp_pa
     assert died in str(returns[2]._return_value) and died in str(returns[3]._return_value)
     assert re.search(r"population launcher: \d/2 done after 0:\d\d: jobs 2-3, 2 failed\n", out)
     assert all(read_run(tmp_path / "sweep" / str(job) / "run.mcap").complete for job in (0, 1))
+    # the worker's lines and its bar's progress reach the launcher, which prints them whole
+    assert re.search(r"\ntraining dqn \(egreedy\) on .* as a population of 2, seeds \[0, 1\]\n", out)
+    assert re.search(r"\npopulation launcher: jobs 0-1: dqn x2 130/130 frames \(100%\), [\d,]+ frames/s", out)
 
 
 def test_a_population_stopped_by_a_signal_ends_the_sweep_after_the_running_ones(tmp_path, monkeypatch, capsys):
