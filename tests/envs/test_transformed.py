@@ -38,7 +38,8 @@ def test_a_rollout_is_that_of_torchrls_own_transformed_env():
 
 def test_a_transform_that_may_end_episodes_turns_the_shortcut_off():
     env = make_env("empty1", batch_size=1, seed=0)  # episodes of 100 steps
-    env.append_transform(StepCounter(max_steps=3))
+    env.rollout(2, break_when_any_done=False)  # the shortcut is set up (and cached) ...
+    env.append_transform(StepCounter(max_steps=3))  # ... and dropped with TorchRL's cache
     data = env.rollout(7, break_when_any_done=False)
     assert data["next", "truncated"][0, :, 0].tolist() == [False, False, True, False, False, True, False]
     assert data["next", "step_count"][0, :, 0].tolist() == [1, 2, 3, 1, 2, 3, 1]
