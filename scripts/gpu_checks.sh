@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# The checks a GPU session runs, in one call, in the order of what matters most: the eager population rows with
+# a count of the loop's host-device syncs, the compiled rows (with dynamo's recompile and graph-break log, to
+# see why a compiled job is slow there), the quick start and a population sweep with device=cuda. Each step has
+# its own time limit and writes its log (and the benchmarks their JSON) under $OUT as it goes, so a run cut short
+# keeps what it measured; the last lines printed are each step's table or summary.
+#
+#   scripts/gpu_checks.sh                                   # on a machine with CUDA and aia installed
+#   WHEELS=.whl scripts/gpu_checks.sh                       # install carried wheels and aia first (no network)
+#
+# Environment variables (defaults in brackets):
+#   OUT        output folder [outputs/gpu_checks]
+#   DEVICE     torch device [cuda]
+#   WHEELS     a folder of wheels to install (with aia from this checkout) into $OUT/site first []
+#   EAGER_P / COMPILED_P   population sizes of the eager and compiled rows [1,20,80,320 / 1,20,320]
+#   ALGOS      learners of the rows [dqn,adfq]
+#   EAGER_S COMPILED_S QUICKSTART_S SWEEP_S   each step's time limit in seconds [240 240 60 60]
+set -uo pipefail
+
+OUT=${OUT:-outputs/gpu_checks}
+DEVICE=${DEVICE:-cuda}
+EAGER_P=${EAGER_P:-1,20,80,320}
+COMPILED_P=${COMPILED_P:-1,20,320}
+ALGOS=${ALGOS:-dqn,adfq}
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+export PYTHONUNBUFFERED=1
+start=$(date +%s)
+stamp() { echo "[$(( $(date +%s) - start )) s] $*"; }
+quiet() { grep -v -E "frame/s|it/s\]|Warning|warn\(" || true; }
+
+if [ -n "${WHEELS:-}" ]; then  # the wheels first, then aia beside them (its hydra_plugins joins theirs)
+  python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target "$OUT/site" "$WHEELS"/*.whl || exit 1
+  python3 -m pip install -q --no-index --no-deps --no-build-isolation --no-compile --target "$OUT/site-aia" \
+    "$ROOT" > /dev/null 2>&1 || exit 1
+  export PYTHONPATH="$OUT/site-aia:$OUT/site${PYTHONPATH:+:$PYTHONPATH}" PATH="$OUT/site-aia/bin:$PATH"
+fi
+if ! python3 -c "
+import sys, torch
+device = torch.device('$DEVICE')
+sys.exit(device.type != 'cuda' or not torch.cuda.is_available() or (device.index or 0) >= torch.cuda.device_count())
+" 2> /dev/null; then
+  echo "gpu_checks.sh: DEVICE=$DEVICE: not a CUDA device this machine has (cuda, cuda:0, ...); run it where torch sees a GPU" >&2
+  exit 2
+fi
+{ nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.max.sm --format=csv 2>/dev/null
+  python3 -c "import sys, torch, tensordict, torchrl; print(sys.version.split()[0], torch.__version__, tensordict.__version__, torchrl.__version__)"
+} 2>&1 | tee "$OUT/machine.txt"
+
+stamp "eager rows and host syncs"
+timeout "${EAGER_S:-240}" python3 "$ROOT/benchmarks/population.py" --device "$DEVICE" --count-syncs 4 --algos "$ALGOS" \
+  --modes eager --members "$EAGER_P" --out "$OUT/population_eager.json" > "$OUT/eager.log" 2>&1
+echo "exit $?" >> "$OUT/eager.log"
+quiet < "$OUT/eager.log" | grep -E "^(dqn|adfq) |syncs of|^ +[0-9]+  |exit" | head -60
+
+stamp "compiled rows"
+TORCH_LOGS=recompiles,graph_breaks timeout "${COMPILED_S:-240}" python3 "$ROOT/benchmarks/population.py" \
+  --device "$DEVICE" --algos "$ALGOS" --modes compiled --members "$COMPILED_P" --out "$OUT/population_compiled.json" \
+  > "$OUT/compiled.log" 2>&1
+echo "exit $?" >> "$OUT/compiled.log"
+quiet < "$OUT/compiled.log" | grep -E "^(dqn|adfq) |Recompiling|Graph break|Error|exit" | head -30
+
+stamp "quick start"
+(cd "$OUT" && timeout "${QUICKSTART_S:-60}" aia-train device="$DEVICE" frames=2000 hydra.run.dir="$OUT/quickstart" \
+  > "$OUT/quickstart.log" 2>&1; echo "exit $?" >> "$OUT/quickstart.log"
+  aia-log summary "$OUT/quickstart/run.mcap" >> "$OUT/quickstart.log" 2>&1)
+quiet < "$OUT/quickstart.log" | grep -E "frames,|time:|eval/score|exit"
+
+stamp "population sweep"
+(cd "$OUT" && timeout "${SWEEP_S:-60}" aia-train -m seed=0,1,2,3 lr=1e-3,5e-4 device="$DEVICE" frames=2000 \
+  hydra/launcher=population hydra.sweep.dir="$OUT/sweep" > "$OUT/sweep.log" 2>&1; echo "exit $?" >> "$OUT/sweep.log")
+quiet < "$OUT/sweep.log" | grep -E "population|exit" | tail -6
+stamp done
