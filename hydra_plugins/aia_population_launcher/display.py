@@ -4,7 +4,8 @@ Workers forward their printed lines and their training bar's state (``aia.traini
 writing to the terminal themselves, so this process is the terminal's only writer: on a terminal each running
 population has a bar of its own line (``jobs 0-9: dqn,ddqn x10  41%|████ | 12.3k/30.0k [...] score=..``),
 and lines (the workers' and the launcher's) are printed above the bars; elsewhere (a log file, a SLURM job's
-output) a population's progress is one plain line at most every ``every_s`` seconds, and one at its end.
+output) a population's progress is one plain line at most every ``every_s`` seconds (the launcher's
+``progress_every_s``), and one at its end.
 """
 
 from __future__ import annotations

@@ -18,7 +18,8 @@ Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_
    of them failed);
 5. returns one ``JobReturn`` per job, completed with the job's own result or failed with its own error.
 
-Its settings are ``conf/hydra/launcher/population.yaml`` (``n_jobs``, ``task``), found by Hydra in aia's
+Its settings are ``conf/hydra/launcher/population.yaml`` (``n_jobs``, ``task``, ``split_to_fill``,
+``progress_every_s``), found by Hydra in aia's
 config path like the other launchers' (an editable install hides this namespace package from Hydra's plugin
 scan, so the settings are not registered from here).
 """
@@ -97,10 +98,12 @@ def _minutes(seconds: float) -> str:
 class PopulationLauncher(Launcher):
     """Launches a sweep as populations (see the module docstring)."""
 
-    def __init__(self, n_jobs: int = 2, task: str | None = None, split_to_fill: bool = False) -> None:
+    def __init__(self, n_jobs: int = 2, task: str | None = None, split_to_fill: bool = False,
+                 progress_every_s: float = 30.0) -> None:
         self.n_jobs = n_jobs
         self.task = task
         self.split_to_fill = split_to_fill
+        self.progress_every_s = progress_every_s
         self.config: DictConfig | None = None
         self.hydra_context: HydraContext | None = None
         self.task_function: TaskFunction | None = None
@@ -141,7 +144,7 @@ class PopulationLauncher(Launcher):
         calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],
                   [prepared[i].return_value for i in group], threads) for group in groups]
         names = [_job_numbers([prepared[i].hydra_cfg.hydra.job.num for i in group]) for group in groups]
-        display = PopulationDisplay(names, parallel)
+        display = PopulationDisplay(names, parallel, every_s=self.progress_every_s)
         if parallel == 1:
             finished = ((index, run_group(*call)) for index, call in enumerate(calls))
         else:  # as each population ends, whatever its place in the order; one bar per running population
@@ -182,6 +185,7 @@ class PopulationLauncher(Launcher):
 
         check_number("hydra.launcher.n_jobs", self.n_jobs, ge=1, integer=True)
         check_flag("hydra.launcher.split_to_fill", self.split_to_fill)
+        check_number("hydra.launcher.progress_every_s", self.progress_every_s, ge=0)
         try:
             entry = import_entry(task)
         except (ImportError, AttributeError, ValueError):

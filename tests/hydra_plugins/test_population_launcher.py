@@ -144,8 +144,8 @@ def test_a_population_whose_process_dies_fails_alone_and_the_others_train(tmp_pa
     population's jobs, named in one line; the population in the other worker trains to its end."""
     task = _task_module(tmp_path, monkeypatch, "dying", "if list(cfgs[0].hidden) == [24]:\n    os._exit(9)")
     jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [16]), c=(2, [24]), d=(3, [24]))
-    returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs, f"hydra.launcher.task={task}", exit_code=1,
-                             processes=2)
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs, f"hydra.launcher.task={task}",
+                             "hydra.launcher.progress_every_s=0", exit_code=1, processes=2)
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 2 + [JobStatus.FAILED] * 2
     died = "jobs 2-3: the process running their population exited with status 9 before returning its results"
     assert died in str(returns[2]._return_value) and died in str(returns[3]._return_value)
@@ -195,6 +195,7 @@ def test_an_app_without_a_population_entry_is_named(tmp_path, monkeypatch, capsy
     ("hydra.launcher.n_jobs=0", "hydra.launcher.n_jobs=0: expected an integer >= 1"),
     ("hydra.launcher.n_jobs=abc", "hydra.launcher.n_jobs='abc': expected an integer >= 1"),
     ("hydra.launcher.split_to_fill=maybe", "hydra.launcher.split_to_fill='maybe': expected true or false"),
+    ("hydra.launcher.progress_every_s=-1", "hydra.launcher.progress_every_s=-1: expected a number >= 0"),
     ("hydra.launcher.task=nope.train_jobs", "hydra.launcher.task='nope.train_jobs': expected the dotted path of"),
     ("hydra.launcher.task=aia.apps.train.nope", "hydra.launcher.task='aia.apps.train.nope': expected the dotted"),
 ])
