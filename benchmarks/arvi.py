@@ -43,6 +43,7 @@ from aia.envs import make_env
 from aia.evaluation import episode_scores, run_episodes
 from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy
 from aia.policies import RandomPolicy
+from aia.timing import synchronize
 
 REFERENCE_BUDGET = 1.0  # seconds per call (the reference's ARVI)
 BASELINE_COMMIT = "54a9a5a"  # the planner before issue 16 (aia/planners/arvi.py)
@@ -68,10 +69,10 @@ def measure_speed(setting: str, num_worlds: int, budget: float, states: int, dev
     planner.plan(*batches[0])  # warm-up
     seconds, nodes, deltas = [], [], []
     for batch in batches:
-        _sync(device)
+        synchronize(device)
         start = time.perf_counter()
         result = planner.plan(*batch)
-        _sync(device)
+        synchronize(device)
         seconds.append(time.perf_counter() - start)
         nodes.append(result.nodes.float().mean().item())
         deltas.append(result.delta)
@@ -107,10 +108,10 @@ def measure_throughput(setting: str, num_worlds: int, nodes: int, states: int, d
         planner.plan(*batches[0])  # warm-up
         rates, plans[name] = [], []
         for batch in batches:
-            _sync(device)
+            synchronize(device)
             start = time.perf_counter()
             result = planner.plan(*batch)
-            _sync(device)
+            synchronize(device)
             rates.append(result.nodes.sum().item() / (time.perf_counter() - start))
             plans[name].append(result.actions)
         row[f"{name}_nodes_per_s"] = statistics.median(rates)
@@ -156,11 +157,6 @@ def measure_scores(setting: str, budget: float, episodes: int, device: str) -> l
         policy = ARVIPolicy(env, ARVIConfig(time_budget=budget))
         scores.append(episode_scores(run_episodes(env, policy, seed=seed)).item())
     return scores
-
-
-def _sync(device: str) -> None:
-    if device.startswith("cuda"):
-        torch.cuda.synchronize()
 
 
 def speed_table(rows: list[dict]) -> str:

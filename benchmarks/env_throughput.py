@@ -24,6 +24,7 @@ from pathlib import Path
 import torch
 
 from aia.envs import make_env
+from aia.timing import synchronize
 
 SETTINGS = ("empty1", "obstacles1", "small2", "small3")
 
@@ -46,12 +47,10 @@ def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int,
     td = run(0, warmup, td)
     windows = []
     for r in range(repeats):
-        if device.startswith("cuda"):
-            torch.cuda.synchronize()
+        synchronize(device)
         start = time.perf_counter()
         td = run(warmup + r * steps, steps, td)
-        if device.startswith("cuda"):
-            torch.cuda.synchronize()
+        synchronize(device)
         windows.append(time.perf_counter() - start)
     seconds = statistics.median(windows)
     return {

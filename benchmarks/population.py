@@ -84,6 +84,7 @@ NUM_ACTIONS, BATCH = 12, 64
 # the paper presets' replay buffer and target period (a copy every 50 updates: HardUpdate copies on the 51st)
 BUFFER_SIZE, TARGET_PERIOD = 1000, 51
 LOOP_SWITCHES = ("update", "env", "policy")
+_SYNC_SITE_PACKAGES = ("aia", "torchrl", "tensordict")  # the packages whose lines name a host-device sync
 HERE = Path(__file__).parent
 
 
@@ -124,16 +125,22 @@ def flops_per_member_frame(algo: str) -> float:
     return per_sample * (1 + 3 * BATCH + target_rows)
 
 
+def _member_configs(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
+                    inner_dtype: str = "float32") -> list:
+    """The configs of a benchmarked population's members (seeds 0 .. members - 1): the row's preset, learner and
+    exploration, no logger, every ``compile.*`` switch of the loop set to ``compile``."""
+    experiment, exploration, _, _ = ROWS[algo]
+    switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
+    return [_config(f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
+                    f"device={device}", f"warmup_frames={warmup}", f"inner_dtype={inner_dtype}", *switches,
+                    f"frames={frames}", f"seed={seed}") for seed in range(members)]
+
+
 def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
                        inner_dtype: str = "float32") -> dict:
     """Member-frames per second of the updating frames of a ``members``-member population."""
-    experiment, exploration, _, _ = ROWS[algo]
-    switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
-    overrides = [f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
-                 f"device={device}", f"warmup_frames={warmup}", f"inner_dtype={inner_dtype}", *switches]
-
     def job(length: int) -> tuple[float, dict]:
-        cfgs = [_config(*overrides, f"frames={length}", f"seed={seed}") for seed in range(members)]
+        cfgs = _member_configs(algo, members, compile, warmup, length, device, inner_dtype)
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
             states = train_population(cfgs, [Path(out) / str(seed) for seed in range(members)])
@@ -165,18 +172,14 @@ def count_syncs(algo: str, members: int, compile: bool, warmup: int, frames: int
     that asked for each (``torch.cuda.set_sync_debug_mode("warn")``: every synchronising call warns, and the
     warning's Python stack names the TorchRL, tensordict or aia line, and the innermost aia line under it). A
     site counted about once per frame syncs every step; the others sync per episode, evaluation or log."""
-    experiment, exploration, _, _ = ROWS[algo]
-    switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
-    cfgs = [_config(f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
-                    f"device={device}", f"warmup_frames={warmup}", f"frames={warmup + frames}", f"seed={seed}",
-                    *switches) for seed in range(members)]
+    cfgs = _member_configs(algo, members, compile, warmup, warmup + frames, device)
     sites: collections.Counter[str] = collections.Counter()
 
     def record(message, category, filename, lineno, file=None, line=None) -> None:
         if "synchroniz" not in str(message):
             return
         frames_ = [f for f in traceback.extract_stack()[:-1]
-                   if any(f"/{package}/" in f.filename for package in ("aia", "torchrl", "tensordict"))]
+                   if any(f"/{package}/" in f.filename for package in _SYNC_SITE_PACKAGES)]
         if not frames_:
             sites["(outside aia, TorchRL and tensordict)"] += 1
             return
@@ -204,7 +207,7 @@ def count_syncs(algo: str, members: int, compile: bool, warmup: int, frames: int
 def _frame_name(frame: traceback.FrameSummary) -> str:
     """``package/module.py:line function`` of a stack frame in aia, TorchRL or tensordict."""
     path = frame.filename
-    for package in ("aia", "torchrl", "tensordict"):
+    for package in _SYNC_SITE_PACKAGES:
         index = path.rfind(f"/{package}/")
         if index >= 0:
             path = path[index + 1:]

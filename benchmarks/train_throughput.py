@@ -40,6 +40,7 @@ from torchrl.objectives import HardUpdate
 
 from aia.envs import make_env
 from aia.modules.q_networks import make_qvalue_actor
+from aia.timing import synchronize
 from aia.training import train
 from aia.training.components import make_loss, make_stacked_network
 from aia.training.optimizer import StackedAdam, Updater
@@ -78,13 +79,11 @@ def measure_updates(setting: str, algo: str, device: str, compile: bool, updates
     windows = []
     for _ in range(repeats):
         batches = [batch.clone() for _ in range(updates)]  # made outside the timed window
-        if device.startswith("cuda"):
-            torch.cuda.synchronize()
+        synchronize(device)
         start = time.perf_counter()
         for fresh in batches:
             update(fresh)
-        if device.startswith("cuda"):
-            torch.cuda.synchronize()
+        synchronize(device)
         windows.append((time.perf_counter() - start) / updates)
     seconds = statistics.median(windows)
     return {"kind": "update", "setting": setting, "network": SETTINGS[setting], "algo": algo, "device": device,

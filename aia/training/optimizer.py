@@ -60,14 +60,12 @@ class StackedAdam:
         # This step's lr / (1 - beta1^t) per member, and sqrt(1 - beta2^t): filled before each step.
         self.step_sizes = torch.zeros(members, dtype=dtype, device=device)
         self.bias_correction2_sqrt = torch.zeros((), dtype=dtype, device=device)
-        self._lr_steps = torch.zeros(members, dtype=torch.float64, device=device)
 
     def advance(self) -> None:
         """Count one more step and set its bias corrections (no device sync: no host-to-device copy)."""
         self.step_count += 1
         beta1, beta2 = self.betas
-        torch.div(self.lrs, 1 - beta1**self.step_count, out=self._lr_steps)
-        self.step_sizes.copy_(self._lr_steps)
+        self.step_sizes.copy_(self.lrs / (1 - beta1**self.step_count))  # float64 quotients, rounded in the copy
         self.bias_correction2_sqrt.fill_((1 - beta2**self.step_count) ** 0.5)
 
 
