@@ -55,13 +55,24 @@ def make_loss(cfgs: Sequence[DictConfig], actor: TensorDictSequential) -> LossMo
                         sd_max=cfg.algo.sd_max, reward_var=cfg.algo.reward_var,
                         loss_function=cfg.algo.loss_function, reduction="none")
     double = [c.algo.name == "ddqn" for c in cfgs]
-    mixed = len(set(double)) > 1
     loss = DQNLoss(actor, loss_function=cfg.algo.loss_function, delay_value=True,
                    double_dqn=all(double), action_space="categorical", reduction="none")
-    if mixed:
-        return use_memberwise_double(loss, double, cfg.gamma)
-    loss.make_value_estimator(gamma=cfg.gamma)
+    if len(set(double)) > 1:
+        use_memberwise_double(loss, double, cfg.gamma)
+    else:
+        loss.make_value_estimator(gamma=cfg.gamma)
+    _buffers_to(loss.value_estimator, cfg.device)
     return loss
+
+
+def _buffers_to(module: nn.Module, device: str | torch.device) -> None:
+    """Move ``module``'s own buffers (a value estimator's discount, its member indices) to ``device``.
+
+    TorchRL's ``TD0Estimator`` makes its ``gamma`` buffer on the CPU and moves it to the data's device at its
+    first call: a compiled update traced on that first call sees a CPU tensor and compiles again at the second
+    (found on an H200, 2026-12-04: a recompile inside the measured steps of every compiled CUDA job)."""
+    for name, buffer in list(module.named_buffers(recurse=False)):
+        module.register_buffer(name, buffer.to(device))
 
 
 def make_logger(cfg: DictConfig, out_dir: Path, resumed_after_ns: int | None = None) -> Logger | None:
