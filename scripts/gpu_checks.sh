@@ -14,7 +14,8 @@
 #   WHEELS     a folder of wheels to install (with aia from this checkout) into $OUT/site first []
 #   EAGER_P / COMPILED_P   population sizes of the eager and compiled rows [1,20,80,320 / 1,20,320]
 #   ALGOS      learners of the rows [dqn,adfq]
-#   EAGER_S COMPILED_S QUICKSTART_S SWEEP_S   each step's time limit in seconds [240 240 60 60]
+#   EAGER_S COMPILED_S QUICKSTART_S SWEEP_S   each step's time limit in seconds [240 420 60 60]; a compiled
+#              size takes about a minute per learner on an H200's host (its first compile and the jobs' set-up)
 set -uo pipefail
 
 OUT=${OUT:-outputs/gpu_checks}
@@ -55,7 +56,7 @@ echo "exit $?" >> "$OUT/eager.log"
 quiet < "$OUT/eager.log" | grep -E "^(dqn|adfq) |syncs of|^ +[0-9]+  |exit" | head -60
 
 stamp "compiled rows"
-TORCH_LOGS=recompiles,graph_breaks timeout "${COMPILED_S:-240}" python3 "$ROOT/benchmarks/population.py" \
+TORCH_LOGS=recompiles,graph_breaks timeout "${COMPILED_S:-420}" python3 "$ROOT/benchmarks/population.py" \
   --device "$DEVICE" --algos "$ALGOS" --modes compiled --members "$COMPILED_P" --out "$OUT/population_compiled.json" \
   > "$OUT/compiled.log" 2>&1
 echo "exit $?" >> "$OUT/compiled.log"
