@@ -21,7 +21,6 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 
-from aia.compiling import compiled
 from aia.envs import rng
 from aia.modules.exploration import exploring
 from aia.modules.stacked import StackedQNetwork
@@ -44,7 +43,6 @@ class PopulationQPolicy(TensorDictModuleBase):
         eps_init, eps_end, annealing_frames: each member's linear epsilon schedule over its frames (unused by a
             member that samples).
         warmup_frames: frames of uniformly random actions at the start of each member's run.
-        compile: run the network and the greedy argmax through ``torch.compile`` (a few seconds once).
 
     Exploration acts only when the exploration type is ``RANDOM`` or unset (TorchRL's convention); otherwise
     the action is greedy (on the means for ADFQ). :attr:`steps` counts the exploring calls.
@@ -53,7 +51,7 @@ class PopulationQPolicy(TensorDictModuleBase):
     def __init__(self, network: StackedQNetwork, num_actions: int, worlds_per_member: int, seeds: Sequence[int],
                  thompson: bool | Sequence[bool], eps_init: Sequence[float], eps_end: Sequence[float],
                  annealing_frames: Sequence[int], warmup_frames: int, in_key: str = "observation",
-                 action_key: str = "action", compile: bool = False) -> None:
+                 action_key: str = "action") -> None:
         super().__init__()
         members = len(seeds)
         if network.num_members != members:
@@ -82,7 +80,6 @@ class PopulationQPolicy(TensorDictModuleBase):
         if any(samples):
             self._draws["thompson"] = rng.CounterStream(rng.normal, self.keys, _THOMPSON_STREAM, W * A,
                                                         network.weight0.dtype)
-        self._values = compiled(self._network_values) if compile else self._network_values
 
     @property
     def steps(self) -> int:
@@ -113,25 +110,21 @@ class PopulationQPolicy(TensorDictModuleBase):
         """Write the chosen action of every world (int64, shape = the batch shape)."""
         obs = tensordict.get(self.in_keys[0])
         members = self.keys.shape[0]
+        grouped = obs.reshape(members, self.worlds, obs.shape[-1])
         with torch.no_grad():
-            out, greedy = self._values(obs.reshape(members, self.worlds, obs.shape[-1]))
-        # exploring: its draws advance the streams (one step)
-        action = self._explore(out, greedy) if exploring() else greedy
+            out = self.network(grouped)
+        if not exploring():
+            action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
+            return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))
+        action = self._explore(out)  # its draws advance the streams: one step
         return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))
 
-    def _network_values(self, grouped: Tensor) -> tuple[Tensor | tuple[Tensor, Tensor], Tensor]:
-        """The network's output on ``grouped`` (``[P, W, in]``) and its greedy actions ``[P, W]`` (ADFQ: on the
-        means)."""
-        out = self.network(grouped)
-        return out, (out[0] if isinstance(out, tuple) else out).argmax(-1)
-
-    def _explore(self, out: Tensor | tuple[Tensor, Tensor], greedy: Tensor) -> Tensor:
+    def _explore(self, out: Tensor | tuple[Tensor, Tensor]) -> Tensor:
         """``[P, W]`` exploring actions of this step (the draws of counter :attr:`steps`)."""
         warm = self.frames < self.warmup_frames  # read before the draws advance the step count
         every_member_samples = all(self.samples)
         epsilon = None if every_member_samples or warm else self.epsilon()
-        if every_member_samples:
-            greedy = None
+        greedy = None if every_member_samples else (out[0] if isinstance(out, tuple) else out).argmax(-1)
         if any(self.samples):
             mean, log_sd = out
             noise = self._draws["thompson"].next().reshape(mean.shape)

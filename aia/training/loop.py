@@ -150,7 +150,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
         network, num_actions, W, seeds, thompson=[c.exploration.name == "thompson" for c in cfgs],
         eps_init=[c.exploration.get("eps_init", 0.0) for c in cfgs],
         eps_end=[c.exploration.get("eps_end", 0.0) for c in cfgs], annealing_frames=annealing,
-        warmup_frames=cfg.warmup_frames, compile=cfg.compile.policy)
+        warmup_frames=cfg.warmup_frames)
     loss = make_loss(cfgs, actor)
     target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
     optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [c.lr for c in cfgs])

@@ -35,11 +35,11 @@ def _adfq(seed: int, num_actions: int = A) -> ADFQNetwork:
 
 
 def _policy(networks, worlds: int, seeds, thompson: bool = False, eps_init=None, eps_end=None, annealing=None,
-            warmup: int = 0, compile: bool = False) -> PopulationQPolicy:
+            warmup: int = 0) -> PopulationQPolicy:
     P = len(networks)
     return PopulationQPolicy(StackedQNetwork.stack(networks), A, worlds, seeds, thompson,
                              eps_init=eps_init or [1.0] * P, eps_end=eps_end or [0.05] * P,
-                             annealing_frames=annealing or [100] * P, warmup_frames=warmup, compile=compile)
+                             annealing_frames=annealing or [100] * P, warmup_frames=warmup)
 
 
 def _act(policy: PopulationQPolicy, obs: torch.Tensor) -> torch.Tensor:
@@ -93,22 +93,6 @@ def test_members_that_sample_and_members_that_are_epsilon_greedy_act_as_their_so
             assert torch.equal(action[k * W:(k + 1) * W], _act(solo, obs[k * W:(k + 1) * W])), (step, k)
     with pytest.raises(ValueError, match="2 exploration kinds for 3 members"):
         _policy([_adfq(0), _adfq(1), _adfq(2)], W, [5, 6, 7], [False, True])
-
-
-@pytest.mark.parametrize("worlds", [1, 4])
-def test_a_compiled_policy_acts_as_the_eager_one_bit_for_bit(worlds):
-    """``compile=True`` (the network and the greedy argmax in one graph) takes every action the eager policy
-    takes, exploring (epsilon-greedy and Thompson members) and greedy."""
-    networks = [_adfq(0), _adfq(1), _adfq(2)]
-    kinds = dict(thompson=[False, True, False], eps_init=[0.9, 0.5, 0.3], eps_end=[0.2, 0.5, 0.0],
-                 annealing=[40, 1, 80], warmup=3 * worlds)
-    eager, compiled = (_policy(networks, worlds, [5, 6, 7], **kinds, compile=c) for c in (False, True))
-    assert compiled._values != compiled._network_values and eager._values == eager._network_values
-    for step in range(20):
-        obs = _obs(step, 3 * worlds)
-        assert torch.equal(_act(compiled, obs), _act(eager, obs)), step
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        assert torch.equal(_act(compiled, _obs(99, 3 * worlds)), _act(eager, _obs(99, 3 * worlds)))
 
 
 def test_warmup_frames_are_uniformly_random_then_the_schedule_takes_over():
