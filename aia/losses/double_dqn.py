@@ -27,12 +27,14 @@ class MemberwiseDoubleTD0(TD0Estimator):
     costs anyway); the DQN members skip it. Use :func:`use_memberwise_double` to install it.
     """
 
-    def __init__(self, loss: DQNLoss, double: Sequence[bool], gamma: float) -> None:
-        super().__init__(gamma=gamma, value_network=loss.value_network)
+    def __init__(self, loss: DQNLoss, double: Sequence[bool], gamma: float,
+                 device: torch.device | str | None = None) -> None:
+        super().__init__(gamma=gamma, value_network=loss.value_network, device=device)
         # a tuple: the online parameters are the loss's, not a submodule of this estimator
         self._online = (loss.value_network_params,)
         # the Double DQN members' indices: only their slices of the online network see the next observations
-        self.register_buffer("double_members", torch.tensor([k for k, d in enumerate(double) if d], dtype=torch.long))
+        self.register_buffer("double_members", torch.tensor([k for k, d in enumerate(double) if d], dtype=torch.long,
+                                                            device=device))
         self._action_key = loss.tensor_keys.action
         self._action_value_key = loss.tensor_keys.action_value
 
@@ -56,12 +58,13 @@ class MemberwiseDoubleTD0(TD0Estimator):
         return own.index_copy(0, members, double)
 
 
-def use_memberwise_double(loss: DQNLoss, double: Sequence[bool], gamma: float) -> DQNLoss:
+def use_memberwise_double(loss: DQNLoss, double: Sequence[bool], gamma: float,
+                          device: torch.device | str | None = None) -> DQNLoss:
     """``loss`` (``double_dqn=False``, ``delay_value=True``) with :class:`MemberwiseDoubleTD0` as its value
-    estimator, its keys set as ``DQNLoss.make_value_estimator`` sets them."""
+    estimator (its buffers on ``device``), its keys set as ``DQNLoss.make_value_estimator`` sets them."""
     if loss.double_dqn or not loss.delay_value:
         raise ValueError("a memberwise Double DQN target needs DQNLoss(double_dqn=False, delay_value=True)")
-    loss.make_value_estimator(MemberwiseDoubleTD0(loss, double, gamma))
+    loss.make_value_estimator(MemberwiseDoubleTD0(loss, double, gamma, device))
     keys = loss.tensor_keys
     loss.value_estimator.set_keys(value=keys.value, reward=keys.reward, done=keys.done, terminated=keys.terminated,
                                   advantage=keys.advantage, value_target=keys.value_target)

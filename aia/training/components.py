@@ -57,22 +57,13 @@ def make_loss(cfgs: Sequence[DictConfig], actor: TensorDictSequential) -> LossMo
     double = [c.algo.name == "ddqn" for c in cfgs]
     loss = DQNLoss(actor, loss_function=cfg.algo.loss_function, delay_value=True,
                    double_dqn=all(double), action_space="categorical", reduction="none")
+    # the estimator's buffers (its discount) made on the run's device: TorchRL would make them on the CPU and
+    # move them at the first call, and a compiled update traced then would compile again at the second (found
+    # on an H200, 2026-12-04: a recompile inside the measured steps of every compiled CUDA job)
     if len(set(double)) > 1:
-        use_memberwise_double(loss, double, cfg.gamma)
-    else:
-        loss.make_value_estimator(gamma=cfg.gamma)
-    _buffers_to(loss.value_estimator, cfg.device)
+        return use_memberwise_double(loss, double, cfg.gamma, cfg.device)
+    loss.make_value_estimator(gamma=cfg.gamma, device=cfg.device)
     return loss
-
-
-def _buffers_to(module: nn.Module, device: str | torch.device) -> None:
-    """Move ``module``'s own buffers (a value estimator's discount, its member indices) to ``device``.
-
-    TorchRL's ``TD0Estimator`` makes its ``gamma`` buffer on the CPU and moves it to the data's device at its
-    first call: a compiled update traced on that first call sees a CPU tensor and compiles again at the second
-    (found on an H200, 2026-12-04: a recompile inside the measured steps of every compiled CUDA job)."""
-    for name, buffer in list(module.named_buffers(recurse=False)):
-        module.register_buffer(name, buffer.to(device))
 
 
 def make_logger(cfg: DictConfig, out_dir: Path, resumed_after_ns: int | None = None) -> Logger | None:
