@@ -40,9 +40,10 @@ def test_refresh_chunks_have_one_size_and_cover_the_rows(rows, members, expected
     assert [(chunk.start, chunk.stop) for chunk in _chunks(rows, members)] == expected
 
 
-@pytest.mark.parametrize("inner_dtype, chunk_transitions", [("float32", None), ("bfloat16", 20)])
+@pytest.mark.parametrize("inner_dtype, chunk_transitions, written", [("float32", None, 1), ("bfloat16", 20, 1),
+                                                                    ("float32", None, 5)])
 def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monkeypatch, inner_dtype,
-                                                                          chunk_transitions):
+                                                                          chunk_transitions, written):
     if chunk_transitions:  # the refresh in chunks of 10 rows (0-10, 10-20, 14-24)
         monkeypatch.setattr(target_cache, "_CHUNK_TRANSITIONS", chunk_transitions)
     cfgs = [_config("algo=adfq", "hidden=[32,32]", f"inner_dtype={inner_dtype}", f"seed={s}") for s in (0, 1)]
@@ -58,10 +59,10 @@ def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monk
     update = Updater(loss, optimizer, target_updater, 10.0, on_target_copy=cache.invalidate)
     transitions = rollout.select(*loss.in_keys)
     replay.extend(transitions[:10])
-    copies = 0
-    for t in range(10, 40):  # one written transition per step (the buffer wraps at 24), then an update
-        rows = replay.extend(transitions[t:t + 1])
-        cache.record(transitions[t:t + 1], rows)
+    copies = updates = 0
+    for t in range(10, 40, written):  # written transitions per step (the buffer wraps at 24), then an update
+        rows = replay.extend(transitions[t:t + written])
+        cache.record(transitions[t:t + written], rows)
         copies += not cache.fresh
         if not cache.fresh:
             cache.refresh()
@@ -69,7 +70,8 @@ def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monk
         mean, var = _targets_of(loss, batch)
         assert torch.equal(batch["target_mean"], mean) and torch.equal(batch["target_var"], var)
         update(batch)
-    assert copies == 1 + 29 // 4  # the first refresh, then after every copy (every 4th update)
+        updates += 1
+    assert copies == 1 + (updates - 1) // 4  # the first refresh, then after every copy (every 4th update)
 
 
 def test_a_stale_cache_records_nothing_and_an_empty_buffer_cannot_refresh():
