@@ -39,7 +39,9 @@ the same round (median and range). A P = 1 job of a few hundred frames lasts sec
 speed (2026-12-03: 163-489 member-frames/s for the same DQN row in three runs), so a ratio from one round says
 little.
 
-Prints a table and writes JSON (default ``benchmarks/results/population_<device>.json``).
+Prints a table and writes JSON (default ``benchmarks/results/population_<device>.json``); its ``meta`` names the
+commit (and whether the checkout was dirty), the arguments, the start and end (UTC) and the matmul rate before
+and after, so a row can be set beside the VM's hour and the code it measured.
 
     python benchmarks/population.py
     python benchmarks/population.py --members 1,5,20 --modes eager --baseline 54a9a5a
@@ -52,6 +54,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import datetime
 import itertools
 import json
 import os
@@ -72,6 +75,7 @@ from tensordict import TensorDict
 from torchrl.objectives import DQNLoss
 
 from aia.envs import make_env
+from aia.logging.mcap_logger import git_state
 from aia.modules import make_q_network
 from aia.modules.q_networks import make_qvalue_actor
 from aia.timing import sgemm_gflops, synchronize
@@ -86,6 +90,11 @@ BUFFER_SIZE, TARGET_PERIOD = 1000, 51
 LOOP_SWITCHES = ("update", "env", "policy")
 _SYNC_SITE_PACKAGES = ("aia", "torchrl", "tensordict")  # the packages whose lines name a host-device sync
 HERE = Path(__file__).parent
+
+
+def _utc_now() -> str:
+    """The time now, UTC, to the second (ISO 8601): when a run's rows were taken, to set beside the VM's speed."""
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
 def _config(*overrides: str):
@@ -346,7 +355,8 @@ def main() -> None:
     out = args.out or HERE / "results" / f"population_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     gflops_before = sgemm_gflops(device=args.device)
-    meta = {"torch": torch.__version__, "threads": torch.get_num_threads(), "machine": platform.machine(),
+    meta = {"started_utc": _utc_now(), **git_state(HERE), "argv": sys.argv[1:], "torch": torch.__version__,
+            "threads": torch.get_num_threads(), "machine": platform.machine(),
             "gpu": torch.cuda.get_device_name(args.device) if on_gpu else None,
             "load_average_1_5_15min": os.getloadavg(), "sgemm_gflops_before": gflops_before,
             "flops_per_member_frame": {algo: flops_per_member_frame(algo) for algo in ROWS}}
@@ -411,6 +421,7 @@ def main() -> None:
                   flush=True)
 
     meta["sgemm_gflops_after"] = sgemm_gflops(device=args.device)
+    meta["finished_utc"] = _utc_now()
     save()
     print(f"wrote {out}")
 
