@@ -50,6 +50,15 @@ def _chunks(rows: int, members: int) -> list[slice]:
     return [slice(start, start + size) for start in starts]
 
 
+def _rows_dynamic(leaves: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
+    """``leaves`` (``[P, rows, ...]``) with their rows dimension marked dynamic where it has more than one row, so
+    that the buffer's chunks and a write's rows share one compiled graph (dynamo specialises sizes 0 and 1)."""
+    if leaves[0].shape[1] > 1:
+        for leaf in leaves:
+            torch._dynamo.mark_dynamic(leaf, 1)
+    return leaves
+
+
 def _targets(loss: ADFQLoss, keys: tuple[NestedKey, ...], leaves: tuple[torch.Tensor, ...],
              target_params: TensorDictBase) -> TensorDictBase:
     """:meth:`ADFQLoss.targets` ``[P, rows]`` of the transitions whose entries ``keys`` are ``leaves``.
@@ -122,10 +131,7 @@ class TargetCache:
     def _compute(self, transitions: TensorDictBase) -> TensorDictBase:
         """The targets ``[P, rows]`` of ``transitions`` (``[P, rows]``) under this period's target parameters."""
         keys = tuple(transitions.keys(include_nested=True, leaves_only=True))
-        leaves = tuple(transitions.get(key) for key in keys)
-        if leaves[0].shape[1] > 1:  # one graph for any number of rows (dynamo specialises sizes 0 and 1)
-            for leaf in leaves:
-                torch._dynamo.mark_dynamic(leaf, 1)
+        leaves = _rows_dynamic(tuple(transitions.get(key) for key in keys))
         return self._targets(self.loss, keys, leaves, self._params)
 
     def _in_layer_dtypes(self, params: TensorDictBase) -> TensorDictBase:
@@ -138,13 +144,13 @@ class TargetCache:
 
 class _StagedRows:
     """Buffers, allocated once, that a write's ``[T, P]`` transitions are copied into for :meth:`TargetCache.record`:
-    at least ``_MIN_WRITTEN`` rows, the rows past ``T`` holding the first transition ever staged (a row's targets
-    do not depend on the other rows' values, only on their number: see ``_MIN_WRITTEN``), handed to the targets'
-    graph as ``[P, rows]`` views marked dynamic once. Before, each write concatenated the repeated rows as a
-    tensordict and read its keys and the result through tensordict calls: 0.35 ms of Python a write. Measured on
-    the 2-core VM (2026-12-04, compiled ADFQ-TS 3 x 256, three interleaved rounds), a write's targets took
-    0.42-0.47 against 0.74-0.83 ms for one member and 1.68-1.97 against 2.12-2.25 ms for twenty, with the same
-    targets to the bit."""
+    at least ``_MIN_WRITTEN`` rows, the rows past ``T`` holding earlier staged transitions (the first one, at
+    first; a row's targets do not depend on the other rows' values, only on their number: see ``_MIN_WRITTEN``),
+    handed to the targets' graph as ``[P, rows]`` views marked dynamic once. Before, each write concatenated the
+    repeated rows as a tensordict and read its keys and the result through tensordict calls: 0.35 ms of Python a
+    write. Measured on the 2-core VM (2026-12-04, compiled ADFQ-TS 3 x 256, three interleaved rounds), a write's
+    targets took 0.42-0.47 against 0.74-0.83 ms for one member and 1.68-1.97 against 2.12-2.25 ms for twenty,
+    with the same targets to the bit."""
 
     def __init__(self, transitions: TensorDictBase) -> None:
         self.keys = tuple(transitions.keys(include_nested=True, leaves_only=True))
@@ -152,9 +158,7 @@ class _StagedRows:
         self.rows = max(written, _MIN_WRITTEN)
         first = transitions[:1].expand(self.rows, *transitions.batch_size[1:])
         self._buffers = tuple(first.get(key).clone() for key in self.keys)  # [rows, P, ...] each
-        self._views = tuple(buffer.transpose(0, 1) for buffer in self._buffers)  # [P, rows, ...]
-        for view in self._views:  # one graph for any number of rows (dynamo specialises sizes 0 and 1)
-            torch._dynamo.mark_dynamic(view, 1)
+        self._views = _rows_dynamic(tuple(buffer.transpose(0, 1) for buffer in self._buffers))  # [P, rows, ...]
 
     def fill(self, transitions: TensorDictBase) -> tuple[torch.Tensor, ...]:
         """``transitions`` (``[T, P]``) copied into the first ``T`` rows; returns the ``[P, rows]`` views."""
