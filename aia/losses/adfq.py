@@ -232,7 +232,7 @@ class ADFQLoss(LossModule):
             done: done key under ``"next"`` (read for in_keys only). Defaults to ``"done"``.
             terminated: terminal key under ``"next"``, the posterior's ``done``. Defaults to ``"terminated"``.
             priority_weight: importance weights of a prioritized sampler. Defaults to ``"priority_weight"``.
-            target_mean: a precomputed posterior mean (:meth:`targets`), used instead of computing it.
+            target_mean: a precomputed posterior mean (:meth:`target_posterior`), used instead of computing it.
                 Defaults to ``"target_mean"``.
             target_var: its posterior variance. Defaults to ``"target_var"``.
         """
@@ -355,24 +355,38 @@ class ADFQLoss(LossModule):
         ``target_params`` stands in for ``target_value_network_params`` (e.g. the same values cast to the dtypes
         their layers multiply in, once for many calls).
         """
+        in_keys = self.value_network.in_keys
+        # s and s' side by side in a last batch dim (a leading dim would break a member-stacked network)
+        both = torch.stack([tensordict.select(*in_keys), tensordict.get("next").select(*in_keys)],
+                           dim=tensordict.batch_dims)
+        means, log_sds = self.target_beliefs(both, target_params)
+        return self.posterior_of_beliefs(tensordict, (means[..., 0, :], log_sds[..., 0, :]),
+                                         (means[..., 1, :], log_sds[..., 1, :]))
+
+    def target_beliefs(self, observations: TensorDictBase, target_params: TensorDictBase | None = None
+                       ) -> tuple[Tensor, Tensor]:
+        """The target network's beliefs at ``observations`` (the value network's in_keys, any batch shape):
+        every action's mean and log sd (clipped to the sd bounds), each ``[..., A]``, without gradients.
+        ``target_params`` as in :meth:`target_posterior`."""
         if target_params is None:
             target_params = self.target_value_network_params
         keys = self.tensor_keys
+        with torch.no_grad(), target_params.to_module(self.value_network, preserve_module_state=False):
+            beliefs = self.value_network(observations.select(*self.value_network.in_keys))
+        return beliefs.get(keys.action_value), self._clip_log_sd(beliefs.get(keys.action_log_sd))
+
+    def posterior_of_beliefs(self, tensordict: TensorDictBase, beliefs: tuple[Tensor, Tensor],
+                             next_beliefs: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor]:
+        """:meth:`target_posterior` of the transitions ``tensordict`` (its action, next reward and terminated
+        flag) from the target beliefs (:meth:`target_beliefs`) at their ``s`` and ``s'``, each ``[..., A]``."""
+        keys = self.tensor_keys
         batch_size = tensordict.batch_size
-        in_keys = self.value_network.in_keys
         with torch.no_grad():
-            # s and s' side by side in a last batch dim (a leading dim would break a member-stacked network)
-            both = torch.stack([tensordict.select(*in_keys), tensordict.get("next").select(*in_keys)],
-                               dim=tensordict.batch_dims)
-            with target_params.to_module(self.value_network, preserve_module_state=False):
-                both = self.value_network(both)
-            means = both.get(keys.action_value)
-            log_sds = self._clip_log_sd(both.get(keys.action_log_sd))
             action = tensordict.get(keys.action)
-            mean = self._select_action(means[..., 0, :], action)
-            var = torch.exp(2.0 * self._select_action(log_sds[..., 0, :], action))
-            next_mean = means[..., 1, :]
-            next_var = torch.exp(2.0 * log_sds[..., 1, :])
+            mean = self._select_action(beliefs[0], action)
+            var = torch.exp(2.0 * self._select_action(beliefs[1], action))
+            next_mean = next_beliefs[0]
+            next_var = torch.exp(2.0 * next_beliefs[1])
             reward = self._per_sample(tensordict.get(("next", keys.reward)), batch_size)
             terminated = self._per_sample(tensordict.get(("next", keys.terminated)), batch_size)
             return adfq_posterior(
@@ -388,15 +402,6 @@ class ADFQLoss(LossModule):
                 reward_var=self.reward_var,
             )
 
-    def targets(self, tensordict: TensorDictBase, target_params: TensorDictBase | None = None) -> TensorDictBase:
-        """:meth:`target_posterior` as the ``target_mean`` and ``target_var`` entries that ``forward`` takes
-        instead of computing them: a transition's target depends only on it and the target parameters, so
-        between two target updates it can be computed once per stored transition (:class:`~aia.training.
-        target_cache.TargetCache`) rather than once per sampled one."""
-        post_mean, post_var = self.target_posterior(tensordict, target_params)
-        keys = self.tensor_keys
-        return TensorDict({keys.target_mean: post_mean, keys.target_var: post_var}, batch_size=tensordict.batch_size)
-
     # --------------------------------------------------------------- forward
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """The ADFQ loss of a batch of transitions.
@@ -404,15 +409,15 @@ class ADFQLoss(LossModule):
         Args:
             tensordict: transitions with the value network's in_keys at the root and under ``"next"``, the
                 ``action``, and ``("next", reward | terminated | done)`` shaped ``[..., 1]`` (or ``[...]``);
-                with ``target_mean`` and ``target_var`` (:meth:`targets`), those are the targets and the
-                target network is not run.
+                with ``target_mean`` and ``target_var`` (precomputed :meth:`target_posterior`), those are the
+                targets and the target network is not run.
 
         Returns:
             ``TensorDict(loss=..., td_error=..., sd_error=..., posterior_sd=...)`` (scalars; only ``loss``
             carries gradients, to the online parameters).
         """
         keys = self.tensor_keys
-        if keys.target_mean in tensordict.keys():  # noqa: SIM118 (TensorDict has no __contains__); :meth:`targets`
+        if keys.target_mean in tensordict.keys():  # noqa: SIM118 (TensorDict has no __contains__); precomputed
             post_mean, post_var = tensordict.get(keys.target_mean), tensordict.get(keys.target_var)
         else:
             post_mean, post_var = self.target_posterior(tensordict)

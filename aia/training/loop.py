@@ -157,7 +157,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     replay = MemberReplay(cfg.buffer_size, cfg.batch_size, seeds, device=cfg.device)
     # cfg.compile.update would be DictConfig's dict method update (always true), not the switch
     compile_update = cfg.compile["update"]
-    targets = TargetCache(loss, network, replay, compile=compile_update) if cfg.algo.name == "adfq" else None
+    targets = TargetCache(loss, network, replay, worlds=W, compile=compile_update) if cfg.algo.name == "adfq" else None
     update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=compile_update,
                      on_target_copy=targets.invalidate if targets else None)
     base_env = env.base_env

@@ -138,9 +138,8 @@ def test_target_equals_posterior_of_target_network_and_loss_form(batch):
 def test_precomputed_targets_stand_in_for_the_computed_ones(batch):
     net, actor, td = batch
     loss, _ = _make_loss(actor)
-    targets = loss.targets(td)
     post_mean, post_var = loss.target_posterior(td)
-    assert torch.equal(targets["target_mean"], post_mean) and torch.equal(targets["target_var"], post_var)
+    targets = TensorDict(target_mean=post_mean, target_var=post_var, batch_size=td.batch_size)
     computed, given = loss(td.clone()), loss(td.clone().update(targets))
     assert all(torch.equal(computed[key], given[key]) for key in computed.keys())  # noqa: SIM118
     # the given targets are the ones used: other targets, another loss
@@ -148,7 +147,18 @@ def test_precomputed_targets_stand_in_for_the_computed_ones(batch):
     assert not torch.equal(shifted["loss"], computed["loss"])
     # and other target parameters (e.g. cast once) are the ones the computation uses
     halved = loss.target_value_network_params.data.apply(lambda p: 0.5 * p)
-    assert not torch.equal(loss.targets(td, halved)["target_mean"], targets["target_mean"])
+    assert not torch.equal(loss.target_posterior(td, halved)[0], post_mean)
+
+
+def test_the_posterior_of_beliefs_computed_apart_is_the_target_posterior(batch):
+    """The beliefs at s and at s' from separate calls (as the replay's TargetCache computes them, sharing one
+    row's s' with the next row's s) give the posterior of one call on both, to the bit."""
+    net, actor, td = batch
+    loss, _ = _make_loss(actor)
+    beliefs, next_beliefs = loss.target_beliefs(td), loss.target_beliefs(td["next"])
+    mean, var = loss.posterior_of_beliefs(td, beliefs, next_beliefs)
+    post_mean, post_var = loss.target_posterior(td)
+    assert torch.equal(mean, post_mean) and torch.equal(var, post_var)
 
 
 def test_truncation_is_not_terminal(batch):

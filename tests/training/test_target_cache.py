@@ -57,6 +57,10 @@ def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monk
     target_updater = HardUpdate(loss, value_network_update_interval=3)
     optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [1e-2, 1e-2])
     update = Updater(loss, optimizer, target_updater, 10.0, on_target_copy=cache.invalidate)
+    own_rows = []  # per refresh, the rows whose s the network ran on (every other row's s is another row's s')
+    network_rows = cache._network_rows
+    monkeypatch.setattr(cache, "_network_rows", lambda observations, rows, slot: (
+        own_rows.append(len(observations[0])) if slot == 0 else None, network_rows(observations, rows, slot)))
     transitions = rollout.select(*loss.in_keys)
     replay.extend(transitions[:10])
     copies = updates = 0
@@ -72,6 +76,8 @@ def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monk
         update(batch)
         updates += 1
     assert copies == 1 + (updates - 1) // 4  # the first refresh, then after every copy (every 4th update)
+    # one world per member, no episode's start in the buffer: only the oldest row's s is no other row's s'
+    assert own_rows == [1] * copies
 
 
 def test_a_stale_cache_records_nothing_and_an_empty_buffer_cannot_refresh():
