@@ -1,7 +1,7 @@
 """``TargetCache``: every replay row's ADFQ target, computed once per target period instead of once per sample.
 
-A transition's ADFQ target (the posterior :meth:`~aia.losses.ADFQLoss.targets` regresses onto) depends only on
-the transition and the target network, which changes only at a hard target update. In the paper's regime (a
+A transition's ADFQ target (:meth:`~aia.losses.ADFQLoss.target_posterior`, which the loss regresses onto) depends
+only on the transition and the target network, which changes only at a hard target update. In the paper's regime (a
 buffer of 1,000 transitions, a batch of 64, a target copy every 51 updates) the loss would compute it for
 51 x 64 = 3,264 sampled transitions per target period; the cache computes it for the buffer's 1,000 rows at the
 period's start and for each transition as it is written (one per member per frame), and the update reads it
