@@ -64,39 +64,37 @@ def _rows_dynamic(leaves: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
     return leaves
 
 
+def _tensordict(keys: tuple[NestedKey, ...], leaves: tuple[torch.Tensor, ...]) -> TensorDictBase:
+    """The ``[P, rows]`` tensordict of entries ``keys`` = ``leaves``, built inside a compiled function.
+
+    Tensors rather than a tensordict go into the graphs below, so that a compiled copy is one graph for any
+    number of rows (the rows dimension marked dynamic): a tensordict's batch size would fix it."""
+    tensordict = TensorDict(batch_size=leaves[0].shape[:2])
+    for key, leaf in zip(keys, leaves, strict=True):
+        tensordict.set(key, leaf)
+    return tensordict
+
+
 def _targets(loss: ADFQLoss, keys: tuple[NestedKey, ...], leaves: tuple[torch.Tensor, ...],
              target_params: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
     """:meth:`ADFQLoss.target_posterior` ``[P, rows]`` of the transitions whose entries ``keys`` are ``leaves``
-    (a write's rows: the network on their ``s`` and ``s'`` and the posterior in one graph).
-
-    Tensors rather than a tensordict go in, so that a compiled copy is one graph for any number of rows (the
-    rows dimension marked dynamic): a tensordict's batch size would fix it."""
-    transitions = TensorDict(batch_size=leaves[0].shape[:2])
-    for key, leaf in zip(keys, leaves, strict=True):
-        transitions.set(key, leaf)
-    return loss.target_posterior(transitions, target_params)
+    (a write's rows: the network on their ``s`` and ``s'`` and the posterior in one graph)."""
+    return loss.target_posterior(_tensordict(keys, leaves), target_params)
 
 
 def _beliefs(loss: ADFQLoss, keys: tuple[NestedKey, ...], leaves: tuple[torch.Tensor, ...],
              target_params: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
     """:meth:`ADFQLoss.target_beliefs` ``[P, rows, A]`` at the observations whose in_keys ``keys`` are ``leaves``
-    (``[P, rows, ...]``): the refresh's network rows, one graph for any number of rows."""
-    observations = TensorDict(batch_size=leaves[0].shape[:2])
-    for key, leaf in zip(keys, leaves, strict=True):
-        observations.set(key, leaf)
-    return loss.target_beliefs(observations, target_params)
+    (``[P, rows, ...]``): the refresh's network rows."""
+    return loss.target_beliefs(_tensordict(keys, leaves), target_params)
 
 
 def _posterior(loss: ADFQLoss, keys: tuple[NestedKey, ...], leaves: tuple[torch.Tensor, ...], means: torch.Tensor,
                log_sds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """:meth:`ADFQLoss.posterior_of_beliefs` ``[P, rows]`` of the transitions whose entries ``keys`` (the action,
     the next reward and terminated flag) are ``leaves``, from the target beliefs ``[P, rows, 2, A]`` at their
-    ``s`` (``[..., 0, :]``) and ``s'`` (``[..., 1, :]``): the refresh's posterior, one graph for any number of
-    rows."""
-    transitions = TensorDict(batch_size=leaves[0].shape[:2])
-    for key, leaf in zip(keys, leaves, strict=True):
-        transitions.set(key, leaf)
-    return loss.posterior_of_beliefs(transitions, (means[..., 0, :], log_sds[..., 0, :]),
+    ``s`` (``[..., 0, :]``) and ``s'`` (``[..., 1, :]``): the refresh's posterior."""
+    return loss.posterior_of_beliefs(_tensordict(keys, leaves), (means[..., 0, :], log_sds[..., 0, :]),
                                      (means[..., 1, :], log_sds[..., 1, :]))
 
 
@@ -160,8 +158,9 @@ class TargetCache:
         rows = rows[:filled]
         observations = tuple(rows.get(key) for key in self._observation_keys)
         next_observations = tuple(rows.get(("next", key)) for key in self._observation_keys)
-        self._network_rows(next_observations, torch.arange(filled, device=self.replay.device), 1)
-        previous = (torch.arange(filled, device=self.replay.device) - self.worlds) % filled
+        indices = torch.arange(filled, device=self.replay.device)
+        self._network_rows(next_observations, indices, 1)
+        previous = (indices - self.worlds) % filled
         shared = torch.ones(filled, dtype=torch.bool, device=self.replay.device)
         for now, before in zip(observations, next_observations, strict=True):
             shared &= (now == before[previous]).flatten(1).all(1)

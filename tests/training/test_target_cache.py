@@ -59,8 +59,13 @@ def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monk
     update = Updater(loss, optimizer, target_updater, 10.0, on_target_copy=cache.invalidate)
     own_rows = []  # per refresh, the rows whose s the network ran on (every other row's s is another row's s')
     network_rows = cache._network_rows
-    monkeypatch.setattr(cache, "_network_rows", lambda observations, rows, slot: (
-        own_rows.append(len(observations[0])) if slot == 0 else None, network_rows(observations, rows, slot)))
+
+    def counted_network_rows(observations, rows, slot):
+        if slot == 0:
+            own_rows.append(len(observations[0]))
+        network_rows(observations, rows, slot)
+
+    monkeypatch.setattr(cache, "_network_rows", counted_network_rows)
     transitions = rollout.select(*loss.in_keys)
     replay.extend(transitions[:10])
     copies = updates = 0
