@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import types
+import warnings
 from collections.abc import Callable, Sequence
 
 import torch
@@ -11,6 +12,22 @@ import torch
 # constants): every env in a process adds an entry. The default limit (8) would silently send the ninth
 # env of a process (a sweep, a benchmark, a test suite) back to eager mode.
 _RECOMPILE_LIMIT = 256
+
+# Deprecation notices that torch 2.13's compiler and tensordict 0.14 raise from their own internals while compiling
+# (FutureWarnings, so Python prints them, into the progress bar): nothing a user of aia could change.
+LIBRARY_NOTICES = (
+    r"torch\._dynamo\.config\.inline_inbuilt_nn_modules is deprecated",  # tensordict.utils, every first compile
+    r"`torch\._prims_common\.check` is deprecated",  # torch._inductor.lowering
+)
+
+
+def quiet_library_notices() -> None:
+    """Leave :data:`LIBRARY_NOTICES` unprinted (done when this module is imported: before any compile of aia)."""
+    for notice in LIBRARY_NOTICES:
+        warnings.filterwarnings("ignore", message=notice, category=FutureWarning)
+
+
+quiet_library_notices()
 
 # The guards that a private compiled copy keeps (:func:`compiled_update`): every tensor's shape, dtype,
 # device and strides, and the global state (grad mode, default device, deterministic algorithms, ...).

@@ -90,6 +90,18 @@ def _job_numbers(numbers: list[int]) -> str:
     return "jobs " + ", ".join(map(str, numbers))
 
 
+def _sizes(groups: list[list[int]], noun: str = "population", nouns: str = "populations") -> str:
+    """``"2 populations of 2 and 3 members"``, ``"1 population of 4 members"``, ``"3 populations of 1 member each"``
+    (``noun`` and ``nouns`` name one group and several)."""
+    sizes = [len(group) for group in groups]
+    counted = f"{len(sizes)} {noun if len(sizes) == 1 else nouns}"
+    if len(set(sizes)) == 1:
+        members = f"{sizes[0]} member" + ("s" if sizes[0] != 1 else "") + (" each" if len(sizes) > 1 else "")
+    else:
+        members = f"{', '.join(map(str, sizes[:-1]))} and {sizes[-1]} members"
+    return f"{counted} of {members}"
+
+
 def _minutes(seconds: float) -> str:
     """``"12:05"`` (minutes and seconds)."""
     return f"{int(seconds) // 60}:{int(seconds) % 60:02d}"
@@ -129,14 +141,12 @@ class PopulationLauncher(Launcher):
         # run_job configured each job's logging while preparing its folder: back to the launcher's own
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         groups, notes = group_jobs(configs)
-        sizes = ", ".join(str(len(g)) for g in groups)
-        print(f"population launcher: {len(prepared)} jobs in {len(groups)} population(s) of {sizes} member(s)")
+        print(f"population launcher: {len(prepared)} jobs in {_sizes(groups)}")
         for note in notes:
             print(f"population launcher: {note}")
         if self.split_to_fill and len(groups) < self.n_jobs:
             groups = split_to_fill(groups, self.n_jobs)
-            print(f"population launcher: split into {len(groups)} processes of "
-                  f"{', '.join(str(len(g)) for g in groups)} member(s) (split_to_fill)")
+            print(f"population launcher: split into {_sizes(groups, 'process', 'processes')} (split_to_fill)")
         parallel = max(1, min(self.n_jobs, len(groups)))
         if parallel > 1:  # the largest first (stable): processes take the groups in this order
             groups = largest_first(groups, configs)

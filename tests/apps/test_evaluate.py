@@ -103,7 +103,7 @@ def test_population_launcher_plans_all_seeds_in_one_batch_as_each_seed_alone(tmp
              "planner.max_nodes=800", "threads=1"]
     _eval_app(monkeypatch, "-m", *small, "seed=0,1", "hydra/launcher=population", f"hydra.sweep.dir={tmp_path}")
     out = capsys.readouterr().out
-    assert "2 jobs in 1 population(s) of 2 member(s)" in out and out.count("arvi: score") == 2
+    assert "2 jobs in 1 population of 2 members" in out and out.count("arvi: score") == 2
     for seed in (0, 1):
         _eval_app(monkeypatch, *small, f"seed={seed}", f"hydra.run.dir={tmp_path / f'alone{seed}'}")
         together, alone = tmp_path / str(seed), tmp_path / f"alone{seed}"

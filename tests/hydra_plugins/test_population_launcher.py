@@ -71,7 +71,7 @@ def test_one_sweep_trains_a_2_and_a_3_member_population(tmp_path, monkeypatch, c
     monkeypatch.setattr(ConfigLoaderImpl, "load_sweep_config", counting)
     returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs)
     assert len(composed) == 5  # each job's config composed once (the sweeper's check; the launcher reuses it)
-    assert "5 jobs in 2 population(s) of 2, 3 member(s)" in out
+    assert "5 jobs in 2 populations of 2 and 3 members" in out
     assert "as a population of 2, seeds [0, 1]" in out and "as a population of 3, seeds [2, 3, 4]" in out
     # a population's shared counters and time once, then a line per member naming its seed and log
     assert out.count("population of 2 trained: 130 frames") == 1 and out.count("population of 3 trained:") == 1
@@ -97,7 +97,7 @@ def test_one_sweep_trains_a_2_and_a_3_member_population(tmp_path, monkeypatch, c
 
 def test_a_mixed_sweep_splits_and_says_which_key_kept_a_job_apart(tmp_path, monkeypatch, capsys):
     returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,5e-4", "hidden=[16],[24]")
-    assert "8 jobs in 2 population(s) of 4, 4 member(s)" in out
+    assert "8 jobs in 2 populations of 4 members each" in out
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 8
 
 
@@ -108,7 +108,7 @@ def test_a_sweep_over_methods_plots_grouped_by_method(tmp_path, monkeypatch, cap
 
     returns, out = _multirun(tmp_path, monkeypatch, capsys, "method=dqn,ddqn,adfq_ts", "seed=0,1")
     # DQN and Double DQN share a network and a loss: one population of 4
-    assert "6 jobs in 2 population(s) of 4, 2 member(s)" in out
+    assert "6 jobs in 2 populations of 4 and 2 members" in out
     assert "training dqn (egreedy), ddqn (egreedy) on empty with 1 target(s) for 130 frames as a population of 4" in out
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 6
     assert log_main(["plot", str(tmp_path / "sweep"), "--group-by", "method", "--out", str(tmp_path / "m.png")]) == 0
@@ -222,6 +222,21 @@ def test_split_to_fill_splits_the_largest_group_until_every_process_has_one(grou
     from hydra_plugins.aia_population_launcher.population_launcher import split_to_fill
 
     assert split_to_fill(groups, processes) == expected
+
+
+@pytest.mark.parametrize("groups, expected", [
+    ([[0, 1]], "1 population of 2 members"),
+    ([[0]], "1 population of 1 member"),
+    ([[0], [1], [2]], "3 populations of 1 member each"),
+    ([[0, 1], [2, 3]], "2 populations of 2 members each"),
+    ([[0, 1], [2, 3, 4], [5]], "3 populations of 2, 3 and 1 members"),
+])
+def test_the_launcher_counts_populations_and_members_in_words(groups, expected):
+    from hydra_plugins.aia_population_launcher.population_launcher import _sizes
+
+    assert _sizes(groups) == expected
+    assert _sizes(groups, "process", "processes") == expected.replace("populations", "processes").replace(
+        "population", "process")
 
 
 def test_largest_first_orders_groups_by_their_work():

@@ -27,7 +27,7 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
     )
     assert result.returncode == 0, result.stderr[-3000:]
     # one sweep of both settings: per setting, the two ADFQ methods share one population
-    assert "4 jobs in 2 population(s) of 2, 2 member(s)" in result.stdout
+    assert "4 jobs in 2 populations of 2 members each" in result.stdout
     # two processes: each population's end is announced as it comes, whichever ends first
     assert "population launcher: 1/2 done after " in result.stdout
     assert "population launcher: 2/2 done after " in result.stdout
