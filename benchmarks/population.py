@@ -17,6 +17,10 @@
    machine's measured matmul rate (``sgemm_gflops``, all threads), the ceiling a batched program can reach,
    and the time one update's batched products take alone on their own shapes (``update_matmuls_ms``, the
    "products" column): the floor under the update phase, against which the update's other work shows.
+   ``collect_alone_ms`` is the collection's time per step with no update between the steps (the warm-up frames
+   of a warm-up-only job twice as long, net of the warm-up-only job), against the training phases' ``collect``:
+   what the updates between the steps cost the collection (at P = 20 they evict its working set from the
+   cores' caches).
 2. The vmap alternative: one update of P members of the 3 x 128 DQN by ``torch.vmap`` over TorchRL's
    ``DQNLoss`` with the members' parameters stacked and entered with ``to_module``, against the stacked
    network inside one ``DQNLoss`` (what the loop uses), eager, P = 1 and 20.
@@ -147,9 +151,10 @@ def _member_configs(algo: str, members: int, compile: bool, warmup: int, frames:
 
 def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
                        inner_dtype: str = "float32") -> dict:
-    """Member-frames per second of the updating frames of a ``members``-member population."""
-    def job(length: int) -> tuple[float, dict]:
-        cfgs = _member_configs(algo, members, compile, warmup, length, device, inner_dtype)
+    """Member-frames per second of the updating frames of a ``members``-member population, and its collection's
+    time per step without updates between the steps (``collect_alone_ms``)."""
+    def job(length: int, warmup_frames: int = warmup) -> tuple[float, dict]:
+        cfgs = _member_configs(algo, members, compile, warmup_frames, length, device, inner_dtype)
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
             states = train_population(cfgs, [Path(out) / str(seed) for seed in range(members)])
@@ -160,6 +165,9 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
     warmup_s, warmup_phases = job(warmup)
     warmup_s -= warmup_phases.get("first_update", 0.0)
     job_s, phases = job(warmup + frames)
+    # warm-up frames only, twice as many: the steps between the two jobs' ends collect with no update between them
+    _, alone_phases = job(2 * warmup, 2 * warmup)
+    collect_alone_ms = 1e3 * (alone_phases["collect"] - warmup_phases["collect"]) / warmup
     split = {phase: 1e3 * (t - warmup_phases.get(phase, 0.0)) / frames
              for phase, t in phases.items() if phase not in ("first_update", "evaluate")}
     training_ms = sum(ms for phase, ms in split.items() if phase != "checkpoint")
@@ -173,7 +181,7 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
             "member_frames_per_s": 1e3 * members / training_ms,
             "member_frames_per_s_with_evaluation": 1e3 * members / (training_ms + split["evaluate"]),
             "member_frames_per_s_wall_clock": members * frames / (job_s - warmup_s - phases["first_update"]),
-            "ms_per_step_by_phase": split}
+            "ms_per_step_by_phase": split, "collect_alone_ms": collect_alone_ms}
 
 
 def count_syncs(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str) -> dict:
@@ -401,7 +409,8 @@ def main() -> None:
             print(f"{algo:<6}{row['network']:<13}{mode:<10}{dtype:<10}{members:>4}"
                   f"{row['member_frames_per_s']:>17,.0f}{spread:<16}"
                   f"{speedup:<16}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
-                  f"{100 * row['share_of_sgemm_peak']:>17.1f}%{row['update_matmuls_ms']:>10.2f}  {phases}",
+                  f"{100 * row['share_of_sgemm_peak']:>17.1f}%{row['update_matmuls_ms']:>10.2f}  {phases}"
+                  f" (collect alone {row['collect_alone_ms']:.2f})",
                   flush=True)
     if not on_gpu:  # the alternatives were weighed on the CPU (a GPU runs the loop's choice)
         print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
