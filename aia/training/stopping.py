@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from collections.abc import Callable
 from types import FrameType
 
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
@@ -20,17 +21,23 @@ STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
 class StopOnSignals:
     """A context manager that turns :data:`STOP_SIGNALS` into a request to stop (``signal``: the first one).
 
-    Outside the main thread (where Python cannot install handlers, e.g. a launcher's worker thread) it
-    installs nothing and the signals keep their default effect.
+    ``on_signal(signum, first)`` is called after each signal is recorded (the population launcher forwards it to
+    its workers); it runs in a signal handler, so it should only record, send signals or raise. Outside the main
+    thread (where Python cannot install handlers, e.g. a launcher's worker thread) it installs nothing and the
+    signals keep their default effect.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, on_signal: Callable[[int, bool], None] | None = None) -> None:
         self.signal: int | None = None
+        self.on_signal = on_signal
         self._previous: dict[int, object] = {}
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
-        if self.signal is None:
+        first = self.signal is None
+        if first:
             self.signal = signum
+        if self.on_signal is not None:
+            self.on_signal(signum, first)
 
     def __enter__(self) -> StopOnSignals:
         if threading.current_thread() is threading.main_thread():

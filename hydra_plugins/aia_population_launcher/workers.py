@@ -10,10 +10,13 @@ it and the sweep ended in a ``TerminatedWorkerError`` traceback with no job resu
 A worker forwards what its population prints and its training bar's state through its pipe (the launcher
 shows them, :mod:`.display`), so that several populations' bars and lines do not overwrite each other.
 
-A population stopped by a signal (SIGINT, SIGTERM or SIGUSR1 reach the workers too: each stops at the end of
-its episode with its checkpoints, :mod:`aia.training.stopping`) ends the sweep as a solo run ends: the other
-running populations stop the same way, none is started, and the launcher exits with the workers' status
-(128 + signal). A Ctrl-C that reaches only the launcher waits for the running populations to stop.
+Signals (SIGINT, SIGTERM, SIGUSR1: :mod:`aia.training.stopping`) stop a sweep as they stop a solo run. The
+launcher forwards the first one it gets to the running workers, since a ``kill PID``, a container's stop or a
+scheduler may signal the launcher alone; a Ctrl-C in a terminal reaches the workers as well, and a worker keeps
+the first signal of each population. Each running population stops at the end of its episode with its
+checkpoints and logs marked stopped (one that was still being set up starts stopped), none is started after,
+and the launcher exits with status 128 + signal; a second Ctrl-C kills the workers. A worker whose launcher is
+gone (killed outright: its pipe is broken) stops its population the same way instead of failing it.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import contextlib
 import importlib
 import io
 import multiprocessing
+import os
 import pickle
 import signal
 import sys
@@ -68,53 +72,62 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], 
     ``display``. A call whose worker died fails each member with a :class:`~aia.errors.JobFailed` naming the
     call (``names``, e.g. its job numbers) and how the process ended. See the module docstring for signals (a
     stop raises ``SystemExit`` with the workers' exit status once the running calls have ended)."""
-    from aia.errors import JobFailed  # imported here: Hydra's plugin scan imports this package for every app
+    # imported here: Hydra's plugin scan imports this package for every app
+    from aia.errors import JobFailed
+    from aia.training.stopping import StopOnSignals
 
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch or thread state
     pending = list(enumerate(calls))
     running: list[tuple[multiprocessing.Process, Connection, int]] = []  # worker, its pipe, its call's index
     idle: list[tuple[multiprocessing.Process, Connection]] = []
     stop_status: int | None = None
+
+    def forward(signum: int, first: bool) -> None:
+        """To every running worker; a second Ctrl-C kills them (raised out of ``wait``, see ``finally``)."""
+        if signum == signal.SIGINT and not first:
+            raise KeyboardInterrupt
+        for process, _, _ in running:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(process.pid, signum)
+
     try:
-        while pending or running:
-            while pending and stop_status is None and len(running) < processes:
-                process, conn = idle.pop() if idle else _start_worker(context)
-                index, call = pending.pop(0)
-                conn.send(call)
-                running.append((process, conn, index))
-            if not running:
-                break
-            try:
+        with StopOnSignals(on_signal=forward) as stop:
+            while pending or running:
+                while pending and stop_status is None and stop.signal is None and len(running) < processes:
+                    process, conn = _idle_worker(idle) or _start_worker(context)
+                    index, call = pending.pop(0)
+                    conn.send(call)
+                    running.append((process, conn, index))
+                if not running:
+                    break
                 ready = wait([conn for _, conn, _ in running] + [process.sentinel for process, _, _ in running])
-            except KeyboardInterrupt:  # the workers got it too: they stop at the end of their episodes
-                if stop_status is not None:
-                    raise
-                stop_status = 128 + signal.SIGINT
-                print("\npopulation launcher: interrupted: waiting for the running populations to checkpoint "
-                      "(Ctrl-C again kills them)", file=sys.stderr)
-                continue
-            for worker in [w for w in running if w[1] in ready or w[0].sentinel in ready]:
-                process, conn, index = worker
-                kind, payload = _receive(conn, index, display)
-                if kind is None:  # only progress so far
-                    if process.is_alive():
+                if stop.signal is not None and stop_status is None:
+                    stop_status = 128 + stop.signal
+                    display.write(f"population launcher: {signal.Signals(stop.signal).name}: the running "
+                                  "populations stop at the end of their episodes and write their checkpoints "
+                                  "(a second Ctrl-C kills them)")
+                for worker in [w for w in running if w[1] in ready or w[0].sentinel in ready]:
+                    process, conn, index = worker
+                    kind, payload = _receive(conn, index, display)
+                    if kind is None:  # only progress so far
+                        if process.is_alive():
+                            continue
+                        kind = "died"
+                    running.remove(worker)
+                    display.finish(index)
+                    if kind == "done":
+                        idle.append((process, conn))
+                        yield index, payload
                         continue
-                    kind = "died"
-                running.remove(worker)
-                display.finish(index)
-                if kind == "done":
-                    idle.append((process, conn))
-                    yield index, payload
-                    continue
-                process.join()
-                if kind == "stopped":
-                    stop_status = payload if stop_status is None else stop_status
-                else:
-                    error = JobFailed(f"{names[index]}: the process running their population "
-                                      f"{_exit_reason(process.exitcode)}; the other populations ran on")
-                    yield index, [(False, error)] * len(calls[index][1])
-        if stop_status is not None:
-            raise SystemExit(stop_status)
+                    process.join()
+                    if kind == "stopped":
+                        stop_status = payload if stop_status is None else stop_status
+                    else:
+                        error = JobFailed(f"{names[index]}: the process running their population "
+                                          f"{_exit_reason(process.exitcode)}; the other populations ran on")
+                        yield index, [(False, error)] * len(calls[index][1])
+            if stop_status is not None:
+                raise SystemExit(stop_status)
     finally:
         for _, conn in idle:
             with contextlib.suppress(OSError):
@@ -145,6 +158,17 @@ def _receive(conn: Connection, index: int, display: PopulationDisplay) -> tuple[
     return None, None
 
 
+def _idle_worker(idle: list[tuple[multiprocessing.Process, Connection]]
+                 ) -> tuple[multiprocessing.Process, Connection] | None:
+    """An idle worker that is still alive (one signalled between populations has ended), or ``None``."""
+    while idle:
+        process, conn = idle.pop()
+        if process.is_alive():
+            return process, conn
+        process.join()
+    return None
+
+
 def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:
     """A worker process (not a daemon: inductor's compile workers are its children) and the launcher's end
     of its pipe."""
@@ -161,30 +185,80 @@ def _serve(conn: Connection) -> None:
     from aia.training.progress import forwarding  # the worker's own import of aia (see run_in_workers)
 
     sys.stdout.reconfigure(line_buffering=True)  # what is printed between populations, as it comes
+    launcher = _LauncherPipe(conn)
     try:
         while (call := conn.recv()) is not None:
             try:
-                with forwarding(lambda state: conn.send(("progress", state))), _LinesTo(conn) as lines:
+                with _interrupting(), forwarding(lambda state: launcher.send(("progress", state))), \
+                        _LinesTo(launcher) as lines:
                     try:
                         outcome = run_group(*call)
                     finally:
                         lines.flush()
             except SystemExit as stop:  # the task checkpointed and stopped (aia.apps.train.exit_if_stopped)
-                conn.send(("stopped", stop.code if isinstance(stop.code, int) else 1))
+                launcher.send(("stopped", stop.code if isinstance(stop.code, int) else 1))
                 return
-            except KeyboardInterrupt:  # a task that does not handle SIGINT itself
-                conn.send(("stopped", 128 + signal.SIGINT))
+            except _Signalled as signalled:  # while no training loop was listening (see _interrupting)
+                launcher.send(("stopped", 128 + signalled.signum))
                 return
-            conn.send(("done", [(ok, _picklable(result)) for ok, result in outcome]))
+            launcher.send(("done", [(ok, _picklable(result)) for ok, result in outcome]))
     except (KeyboardInterrupt, EOFError):  # interrupted between populations, or the launcher is gone
         return
+
+
+class _Signalled(BaseException):
+    """A stop signal that came while no training loop was listening for one."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _interrupting() -> Iterator[None]:
+    """While a worker runs a call, a stop signal raises :class:`_Signalled`: a population still being set up (or
+    a task that handles no signals, such as an evaluation) ends at once. A training loop's own
+    :class:`~aia.training.stopping.StopOnSignals` takes the signals over while it runs (it stops at the end of
+    its episode, with checkpoints) and hands them back when it ends."""
+    from aia.training.stopping import STOP_SIGNALS
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise _Signalled(signum)
+
+    previous = {signum: signal.signal(signum, interrupt) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+class _LauncherPipe:
+    """A worker's end of its pipe to the launcher. If a send fails, the launcher is gone (killed outright): the
+    worker then stops as on a SIGTERM (its population ends its episode, writes its checkpoints and marks its
+    logs stopped) instead of failing on the broken pipe, and what it would still send is dropped."""
+
+    def __init__(self, conn: Connection) -> None:
+        self.conn = conn
+        self.gone = False
+
+    def send(self, message: tuple[str, object]) -> None:
+        if self.gone:
+            return
+        try:
+            self.conn.send(message)
+        except OSError:
+            self.gone = True
+            print("population launcher's worker: the launcher is gone: this population stops as on a SIGTERM",
+                  file=sys.stderr)
+            os.kill(os.getpid(), signal.SIGTERM)
 
 
 class _LinesTo(io.TextIOBase):
     """``sys.stdout`` of a worker while it runs a population: each complete line printed goes to the launcher
     as ``("print", line)`` (the rest of a line waits for its end, or for :meth:`flush`)."""
 
-    def __init__(self, conn: Connection) -> None:
+    def __init__(self, conn: _LauncherPipe) -> None:
         self.conn = conn
         self._partial = ""
 

@@ -9,6 +9,7 @@ import re
 import sys
 
 import pytest
+import torch
 import yaml
 from hydra._internal.config_loader_impl import ConfigLoaderImpl
 from hydra.core.plugins import Plugins
@@ -170,6 +171,44 @@ def test_a_population_stopped_by_a_signal_ends_the_sweep_after_the_running_ones(
     sweep = tmp_path / "sweep"
     assert read_run(sweep / "1" / "run.mcap").complete  # ran beside the stopped one, to its end
     assert not (sweep / "0" / "run.mcap").exists()  # waiting when the signal came: never started
+
+
+def test_a_signal_to_the_launcher_alone_stops_the_running_populations_with_their_checkpoints(
+        tmp_path, monkeypatch, capsys):
+    """``kill PID`` (or a container's stop) signals the launcher only: it forwards the signal to the running
+    workers, whose populations end their episode, checkpoint and mark their logs stopped; the waiting one never
+    starts, and the launcher exits with 143. Both running populations are held at their first episode's end
+    until both are training; then one signals the launcher (its parent) and waits for the forwarded signal."""
+    at_first_episode_end = (
+        "import signal, time\n"
+        "from pathlib import Path\n"
+        "from aia.training import loop\n"
+        f"flags = Path({str(tmp_path)!r})\n"
+        "end_episodes = loop._Run.end_episodes\n"
+        "def held(self, *args):\n"
+        "    if not hasattr(held, 'done'):\n"
+        "        held.done = True\n"
+        "        (flags / f'training{list(cfgs[0].hidden)[0]}').touch()\n"
+        "        if list(cfgs[0].hidden) == [32]:\n"
+        "            while not (flags / 'training24').exists():\n"
+        "                time.sleep(0.01)\n"
+        "            os.kill(os.getppid(), signal.SIGTERM)\n"
+        "        time.sleep(2)  # the forwarded signal arrives meanwhile\n"
+        "    return end_episodes(self, *args)\n"
+        "loop._Run.end_episodes = held")
+    task = _task_module(tmp_path, monkeypatch, "signalling", at_first_episode_end)
+    jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [24]), c=(2, [32]))
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs, f"hydra.launcher.task={task}", exit_code=143,
+                             processes=2)
+    assert returns == []
+    assert "population launcher: SIGTERM: the running populations stop at the end of their episodes" in out
+    sweep = tmp_path / "sweep"
+    for job in (1, 2):  # stopped at the end of the first episode (30 frames of 130)
+        run = read_run(sweep / str(job) / "run.mcap")
+        assert run.complete and run.failure.startswith("stopped: SIGTERM at frame 30")
+        checkpoint = torch.load(sweep / str(job) / "checkpoints" / "last.pt", weights_only=False)
+        assert checkpoint["state"]["frames"] == 30
+    assert not (sweep / "0" / "run.mcap").exists()
 
 
 def test_a_job_that_differs_from_all_others_runs_alone_and_says_why(tmp_path, monkeypatch, capsys):

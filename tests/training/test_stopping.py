@@ -1,0 +1,26 @@
+"""aia.training.stopping: a signal is recorded (the first one) and reported to ``on_signal``; the previous
+handlers come back on exit."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+from aia.training.stopping import StopOnSignals
+
+
+def _send(signum: int) -> None:
+    """Deliver ``signum`` to this process now (Python runs the handler before the next line)."""
+    os.kill(os.getpid(), signum)
+
+
+def test_the_first_signal_is_kept_and_every_signal_is_reported():
+    calls = []
+    before = signal.getsignal(signal.SIGUSR1)
+    with StopOnSignals(on_signal=lambda signum, first: calls.append((signum, first))) as stop:
+        assert stop.signal is None
+        _send(signal.SIGUSR1)
+        _send(signal.SIGTERM)
+        assert stop.signal == signal.SIGUSR1 and stop.exit_status == 128 + signal.SIGUSR1
+    assert calls == [(signal.SIGUSR1, True), (signal.SIGTERM, False)]
+    assert signal.getsignal(signal.SIGUSR1) is before
