@@ -68,7 +68,7 @@ from aia.training.members import check_population
 from aia.training.optimizer import StackedAdam, Updater
 from aia.training.progress import progress_bar
 from aia.training.replay import MemberReplay
-from aia.training.resuming import load_resumable, resume_path
+from aia.training.resuming import checkpoint_point, load_resumable, resume_path
 from aia.training.stopping import StopOnSignals
 from aia.training.target_cache import TargetCache
 from aia.validation import validate_train_config
@@ -290,7 +290,7 @@ def _checkpoints(cfgs: list[DictConfig], out_dirs: list[Path]) -> list[dict | No
         raise ConfigError("resume", [str(p) for p in paths], "a checkpoint for every member of a population or for "
                           f"none (none for {', '.join(missing)})")
     checkpoints = [load_resumable(path, cfg, cfgs[0].device) for cfg, path in zip(cfgs, paths, strict=True)]
-    points = [tuple(c["state"][k] for k in ("frames", "updates", "episodes", "evaluations")) for c in checkpoints]
+    points = [checkpoint_point(checkpoint) for checkpoint in checkpoints]
     if len(set(points)) > 1:
         raise ConfigError("resume", [str(p) for p in paths], "checkpoints of one point of a population (their "
                           f"frames: {[point[0] for point in points]})")

@@ -33,6 +33,26 @@ def resume_path(cfg: DictConfig, out_dir: Path) -> Path | None:
     return Path(str(resume))
 
 
+def checkpoint_point(checkpoint: dict) -> tuple[int, int, int, int]:
+    """Where a checkpoint's run stands: its frames, updates, episodes and evaluations (the members of a resumed
+    population must all stand at one point)."""
+    state = checkpoint["state"]
+    return state["frames"], state["updates"], state["episodes"], state["evaluations"]
+
+
+def resume_point(cfg: DictConfig, out_dir: Path) -> tuple[int, int, int, int] | str | None:
+    """Where this run continues from, to group runs into populations: its checkpoint's :func:`checkpoint_point`,
+    ``None`` for a fresh start, or the path of a checkpoint it cannot read (that run then fails alone, with
+    :func:`load_resumable`'s line). Reads only the checkpoint's counters (its tensors are mapped, not loaded)."""
+    path = resume_path(cfg, out_dir)
+    if path is None:
+        return None
+    try:
+        return checkpoint_point(torch.load(path, weights_only=False, map_location="cpu", mmap=True))
+    except Exception:  # unreadable, or not a checkpoint of aia-train
+        return str(path)
+
+
 def load_resumable(path: Path, cfg: DictConfig, map_location: str) -> dict:
     """The checkpoint at ``path``, refused with one line if it is unreadable or from an incompatible run."""
     try:

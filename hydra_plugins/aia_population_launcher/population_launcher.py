@@ -44,21 +44,36 @@ from hydra_plugins.aia_population_launcher.workers import import_entry, run_grou
 log = logging.getLogger(__name__)
 
 
-def group_jobs(cfgs: Sequence[DictConfig]) -> tuple[list[list[int]], list[str]]:
-    """The jobs' indices grouped into populations (in order of first appearance), and one line per job that
-    runs alone naming the key that kept it from the first group."""
+def group_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[str | Path], numbers: Sequence[int] | None = None
+               ) -> tuple[list[list[int]], list[str]]:
+    """The jobs' indices grouped into populations (in order of first appearance), and a line per job that runs
+    alone naming the key that kept it from the first group. Jobs that could share a population but continue
+    from different points (``resume=auto`` after a sweep grew: some jobs' folders hold checkpoints, others
+    none) train as one population per point, with a line per population saying where it starts. ``numbers``
+    are the jobs' numbers in those lines (default: their indices)."""
     # imported here, not at the top: Hydra's plugin scan imports this module for every app's start
     from aia.training.members import first_difference, population_signature
+    from aia.training.resuming import resume_point
 
-    groups: dict[str, list[int]] = {}
-    for index, cfg in enumerate(cfgs):
-        groups.setdefault(population_signature(cfg), []).append(index)
+    numbers = list(numbers) if numbers is not None else list(range(len(cfgs)))
+    groups: dict[tuple[str, str], list[int]] = {}
+    starts: dict[str, dict[str, str]] = {}  # per signature: each resume point's words
+    for index, (cfg, out_dir) in enumerate(zip(cfgs, out_dirs, strict=True)):
+        signature, point = population_signature(cfg), resume_point(cfg, Path(out_dir))
+        groups.setdefault((signature, repr(point)), []).append(index)
+        starts.setdefault(signature, {})[repr(point)] = (
+            "starting fresh" if point is None else f"resuming from frame {point[0]:,}" if isinstance(point, tuple)
+            else f"resuming from {point}")
+    notes = [f"{_job_numbers([numbers[i] for i in group])}: {starts[signature][point]} (a population of "
+             f"{'its' if len(group) == 1 else 'their'} own)"
+             for (signature, point), group in groups.items() if len(starts[signature]) > 1]
     grouped = list(groups.values())
-    notes = []
-    for group in grouped[1:] if len(grouped) > 1 else []:
-        if len(group) == 1:
-            key, own, other = first_difference(cfgs[group[0]], cfgs[grouped[0][0]])
-            notes.append(f"job {group[0]} runs alone: its {key}={own!r} differs from job {grouped[0][0]}'s {other!r}")
+    for group in grouped[1:]:
+        difference = first_difference(cfgs[group[0]], cfgs[grouped[0][0]]) if len(group) == 1 else None
+        if difference is not None:
+            key, own, other = difference
+            notes.append(f"job {numbers[group[0]]} runs alone: its {key}={own!r} differs from job "
+                         f"{numbers[grouped[0][0]]}'s {other!r}")
     return grouped, notes
 
 
@@ -140,7 +155,8 @@ class PopulationLauncher(Launcher):
                                   for i, overrides in enumerate(job_overrides)), strict=True)
         # run_job configured each job's logging while preparing its folder: back to the launcher's own
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
-        groups, notes = group_jobs(configs)
+        groups, notes = group_jobs(configs, [job.return_value for job in prepared],
+                                   [job.hydra_cfg.hydra.job.num for job in prepared])
         print(f"population launcher: {len(prepared)} jobs in {_sizes(groups)}")
         for note in notes:
             print(f"population launcher: {note}")

@@ -211,6 +211,28 @@ def test_a_signal_to_the_launcher_alone_stops_the_running_populations_with_their
     assert not (sweep / "0" / "run.mcap").exists()
 
 
+def test_a_grown_sweep_resumes_its_old_jobs_and_starts_its_new_ones_as_populations_apart(
+        tmp_path, monkeypatch, capsys):
+    """``-m seed=0,1`` then ``-m seed=0,1,2 resume=auto`` with a larger budget: jobs 0-1 continue from their
+    checkpoints as one population, job 2 starts fresh in another (one population of all three would be refused:
+    its members must all resume from one point)."""
+    _multirun(tmp_path, monkeypatch, capsys, "seed=0,1")
+    monkeypatch.undo()  # the launcher's spy and sys.argv, set again below
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1,2", "frames=160", "resume=auto")
+    assert "3 jobs in 2 populations of 2 and 1 members" in out
+    assert "population launcher: jobs 0-1: resuming from frame 130 (a population of their own)" in out
+    assert "population launcher: job 2: starting fresh (a population of its own)" in out
+    assert [r.status for r in returns] == [JobStatus.COMPLETED] * 3
+    # the old jobs' episode under way at frame 130 was abandoned (a resumed run starts the next one)
+    episode_ends = {0: [30, 60, 90, 120, 160], 1: [30, 60, 90, 120, 160], 2: [30, 60, 90, 120, 150]}
+    for job in range(3):
+        run = read_run(tmp_path / "sweep" / str(job) / "run.mcap")
+        assert run.complete and run.scalars("train/score").frames.tolist() == episode_ends[job]
+        checkpoint = torch.load(tmp_path / "sweep" / str(job) / "checkpoints" / "last.pt", weights_only=False)
+        assert checkpoint["state"]["frames"] == 160
+    assert f"resuming from {tmp_path / 'sweep' / '0' / 'checkpoints' / 'last.pt'} at frame 130" in out
+
+
 def test_a_job_that_differs_from_all_others_runs_alone_and_says_why(tmp_path, monkeypatch, capsys):
     jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [16]), c=(2, [24]))
     returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs)

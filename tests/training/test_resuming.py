@@ -17,6 +17,7 @@ from hydra import compose, initialize_config_module
 from aia.errors import ConfigError
 from aia.logging import find_runs, read_run
 from aia.training import train
+from aia.training.resuming import resume_point
 from aia.training.stopping import StopOnSignals
 
 SMALL = ("env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16", "hidden=[32,32]",
@@ -85,6 +86,22 @@ def test_a_checkpoint_of_another_run_is_refused_naming_each_difference(tmp_path)
     broken.write_text("not a checkpoint")
     with pytest.raises(ConfigError, match=f"resume='{broken}': expected a readable aia-train checkpoint"):
         train(_config(*SMALL, "frames=200", "logger=none", f"resume={broken}"), tmp_path / "c")
+
+
+def test_resume_point_is_where_a_run_continues_without_loading_it_for_training(tmp_path):
+    """What the population launcher groups jobs by: a fresh start (no resume, or auto without a checkpoint),
+    the checkpoint's counters, or the path of a file that is no checkpoint (its run then fails alone)."""
+    cfg = _config(*SMALL, "frames=120", "logger=none")
+    assert resume_point(cfg, tmp_path / "a") is None
+    auto = _config(*SMALL, "frames=200", "logger=none", "resume=auto")
+    assert resume_point(auto, tmp_path / "a") is None
+    state = train(cfg, tmp_path / "a")
+    assert resume_point(auto, tmp_path / "a") == (120, state.updates, state.episodes, state.evaluations) == (
+        120, 21, 3, 3)
+    assert resume_point(cfg, tmp_path / "a") is None  # no resume asked for
+    broken = tmp_path / "broken.pt"
+    broken.write_text("not a checkpoint")
+    assert resume_point(_config(*SMALL, f"resume={broken}"), tmp_path / "b") == str(broken)
 
 
 def test_resume_auto_after_kill_9_gives_the_uninterrupted_history(tmp_path):
