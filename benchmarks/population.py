@@ -70,7 +70,7 @@ import tempfile
 import time
 import traceback
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import torch
@@ -138,15 +138,15 @@ def flops_per_member_frame(algo: str) -> float:
     return per_sample * (1 + 3 * BATCH + target_rows)
 
 
-def _member_configs(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
-                    inner_dtype: str = "float32") -> list:
+def member_configs(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
+                   inner_dtype: str = "float32", extra: Sequence[str] = ()) -> list:
     """The configs of a benchmarked population's members (seeds 0 .. members - 1): the row's preset, learner and
-    exploration, no logger, every ``compile.*`` switch of the loop set to ``compile``."""
+    exploration, no logger, every ``compile.*`` switch of the loop set to ``compile``, then ``extra`` overrides."""
     experiment, exploration, _, _ = ROWS[algo]
     switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
     return [_config(f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
                     f"device={device}", f"warmup_frames={warmup}", f"inner_dtype={inner_dtype}", *switches,
-                    f"frames={frames}", f"seed={seed}") for seed in range(members)]
+                    f"frames={frames}", f"seed={seed}", *extra) for seed in range(members)]
 
 
 def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
@@ -154,7 +154,7 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
     """Member-frames per second of the updating frames of a ``members``-member population, and its collection's
     time per step without updates between the steps (``collect_alone_ms``)."""
     def job(length: int, warmup_frames: int = warmup) -> tuple[float, dict]:
-        cfgs = _member_configs(algo, members, compile, warmup_frames, length, device, inner_dtype)
+        cfgs = member_configs(algo, members, compile, warmup_frames, length, device, inner_dtype)
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
             states = train_population(cfgs, [Path(out) / str(seed) for seed in range(members)])
@@ -189,7 +189,7 @@ def count_syncs(algo: str, members: int, compile: bool, warmup: int, frames: int
     that asked for each (``torch.cuda.set_sync_debug_mode("warn")``: every synchronising call warns, and the
     warning's Python stack names the TorchRL, tensordict or aia line, and the innermost aia line under it). A
     site counted about once per frame syncs every step; the others sync per episode, evaluation or log."""
-    cfgs = _member_configs(algo, members, compile, warmup, warmup + frames, device)
+    cfgs = member_configs(algo, members, compile, warmup, warmup + frames, device)
     sites: collections.Counter[str] = collections.Counter()
 
     def record(message, category, filename, lineno, file=None, line=None) -> None:
