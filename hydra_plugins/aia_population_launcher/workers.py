@@ -11,10 +11,10 @@ A worker forwards what its population prints and its training bar's state throug
 shows them, :mod:`.display`), so that several populations' bars and lines do not overwrite each other.
 
 Signals (SIGINT, SIGTERM, SIGUSR1: :mod:`aia.training.stopping`) stop a sweep as they stop a solo run. The
-launcher forwards the first one it gets to the running workers, since a ``kill PID``, a container's stop or a
+launcher forwards each one it gets to the running workers, since a ``kill PID``, a container's stop or a
 scheduler may signal the launcher alone; a Ctrl-C in a terminal reaches the workers as well, and a worker keeps
 the first signal of each population. Each running population stops at the end of its episode with its
-checkpoints and logs marked stopped (one that was still being set up starts stopped), none is started after,
+checkpoints and logs marked stopped (one still being set up ends at once), none is started after,
 and the launcher exits with status 128 + signal; a second Ctrl-C kills the workers. A worker whose launcher is
 gone (killed outright: its pipe is broken) stops its population the same way instead of failing it.
 """
