@@ -61,9 +61,7 @@ def group_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[str | Path], numbe
     for index, (cfg, out_dir) in enumerate(zip(cfgs, out_dirs, strict=True)):
         signature, point = population_signature(cfg), resume_point(cfg, Path(out_dir))
         groups.setdefault((signature, repr(point)), []).append(index)
-        starts.setdefault(signature, {})[repr(point)] = (
-            "starting fresh" if point is None else f"resuming from frame {point[0]:,}" if isinstance(point, tuple)
-            else f"resuming from {point}")
+        starts.setdefault(signature, {})[repr(point)] = _start(point)
     notes = [f"{_job_numbers([numbers[i] for i in group])}: {starts[signature][point]} (a population of "
              f"{'its' if len(group) == 1 else 'their'} own)"
              for (signature, point), group in groups.items() if len(starts[signature]) > 1]
@@ -75,6 +73,15 @@ def group_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[str | Path], numbe
             notes.append(f"job {numbers[group[0]]} runs alone: its {key}={own!r} differs from job "
                          f"{numbers[grouped[0][0]]}'s {other!r}")
     return grouped, notes
+
+
+def _start(point: tuple[int, ...] | str | None) -> str:
+    """Where a job with this :func:`~aia.training.resuming.resume_point` starts, in words."""
+    if point is None:
+        return "starting fresh"
+    if isinstance(point, tuple):
+        return f"resuming from frame {point[0]:,}"
+    return f"resuming from {point}"  # a checkpoint it cannot read: it fails alone, saying why
 
 
 def split_to_fill(groups: list[list[int]], processes: int) -> list[list[int]]:
