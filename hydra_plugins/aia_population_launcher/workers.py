@@ -214,23 +214,17 @@ class _Signalled(BaseException):
         self.signum = signum
 
 
-@contextlib.contextmanager
-def _interrupting() -> Iterator[None]:
+def _interrupting() -> contextlib.AbstractContextManager:
     """While a worker runs a call, a stop signal raises :class:`_Signalled`: a population still being set up (or
     a task that handles no signals, such as an evaluation) ends at once. A training loop's own
     :class:`~aia.training.stopping.StopOnSignals` takes the signals over while it runs (it stops at the end of
     its episode, with checkpoints) and hands them back when it ends."""
-    from aia.training.stopping import STOP_SIGNALS
+    from aia.training.stopping import StopOnSignals
 
-    def interrupt(signum: int, frame: object) -> None:
+    def interrupt(signum: int, first: bool) -> None:
         raise _Signalled(signum)
 
-    previous = {signum: signal.signal(signum, interrupt) for signum in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+    return StopOnSignals(on_signal=interrupt)
 
 
 class _LauncherPipe:
