@@ -39,7 +39,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from hydra_plugins.aia_population_launcher.display import PopulationDisplay
-from hydra_plugins.aia_population_launcher.workers import import_entry, run_group, run_in_workers
+from hydra_plugins.aia_population_launcher.workers import Outcome, import_entry, run_group, run_in_workers
 
 log = logging.getLogger(__name__)
 
@@ -129,6 +129,14 @@ def _minutes(seconds: float) -> str:
     return f"{int(seconds) // 60}:{int(seconds) % 60:02d}"
 
 
+def done_line(done: int, total: int, start: float, name: str, outcome: Outcome) -> str:
+    """``"population launcher: 2/3 done after 1:05: jobs 0-1, 1 failed"``: what is said as a population ends
+    (``start``: the ``time.monotonic()`` the populations started at)."""
+    failed = sum(not ok for ok, _ in outcome)
+    return (f"population launcher: {done}/{total} done after {_minutes(time.monotonic() - start)}: {name}"
+            + (f", {failed} failed" if failed else ""))
+
+
 class PopulationLauncher(Launcher):
     """Launches a sweep as populations (see the module docstring)."""
 
@@ -167,32 +175,11 @@ class PopulationLauncher(Launcher):
         print(f"population launcher: {len(prepared)} jobs in {_sizes(groups)}")
         for note in notes:
             print(f"population launcher: {note}")
-        if self.split_to_fill and len(groups) < self.n_jobs:
-            groups = split_to_fill(groups, self.n_jobs)
-            print(f"population launcher: split into {_sizes(groups, 'process', 'processes')} (split_to_fill)")
-        parallel = max(1, min(self.n_jobs, len(groups)))
-        if parallel > 1:  # the largest first (stable): processes take the groups in this order
-            groups = largest_first(groups, configs)
-        threads = max(1, (os.cpu_count() or 1) // parallel) if parallel > 1 else None
-        calls = [(task, [OmegaConf.to_container(configs[i]) for i in group],
-                  [prepared[i].return_value for i in group], threads) for group in groups]
+        groups = self._arrange(groups, configs)
         names = [_job_numbers([prepared[i].hydra_cfg.hydra.job.num for i in group]) for group in groups]
-        display = PopulationDisplay(names, parallel, every_s=self.progress_every_s)
-        if parallel == 1:
-            finished = ((index, run_group(*call)) for index, call in enumerate(calls))
-        else:  # as each population ends, whatever its place in the order; one bar per running population
-            finished = run_in_workers(calls, parallel, names, display)
-        outcomes: list[list[tuple[bool, object]]] = [[] for _ in calls]
-        start = time.monotonic()
-        try:
-            for done, (index, results) in enumerate(finished, 1):
-                outcomes[index] = results
-                failed = sum(not ok for ok, _ in results)
-                display.write(f"population launcher: {done}/{len(calls)} done after "
-                              f"{_minutes(time.monotonic() - start)}: {names[index]}"
-                              + (f", {failed} failed" if failed else ""))
-        finally:
-            display.close()
+        members = [([OmegaConf.to_container(configs[i]) for i in group], [prepared[i].return_value for i in group])
+                   for group in groups]
+        outcomes = self._run(task, members, names)
         for group, results in zip(groups, outcomes, strict=True):
             for index, (ok, result) in zip(group, results, strict=True):
                 prepared[index].status = JobStatus.COMPLETED if ok else JobStatus.FAILED
@@ -200,6 +187,38 @@ class PopulationLauncher(Launcher):
                 if not ok:
                     log.error(f"job {prepared[index].hydra_cfg.hydra.job.num} failed: {result}")
         return list(prepared)
+
+    def _arrange(self, groups: list[list[int]], configs: Sequence[DictConfig]) -> list[list[int]]:
+        """The populations in the order they start: split to fill the processes (``split_to_fill``), and
+        the largest first when several run at once."""
+        if self.split_to_fill and len(groups) < self.n_jobs:
+            groups = split_to_fill(groups, self.n_jobs)
+            print(f"population launcher: split into {_sizes(groups, 'process', 'processes')} (split_to_fill)")
+        if min(self.n_jobs, len(groups)) > 1:  # the largest first (stable): processes take the groups in this order
+            groups = largest_first(groups, configs)
+        return groups
+
+    def _run(self, task: str, members: list[tuple[list[dict], list[str]]], names: list[str]) -> list[Outcome]:
+        """Run each population (its members' configs and job folders) on this machine, ``n_jobs`` at a time in
+        worker processes with a share of the cores each (in this process if one runs at a time), saying as
+        each ends; the outcomes in the populations' order. ``names``: each population's job numbers."""
+        parallel = max(1, min(self.n_jobs, len(members)))
+        threads = max(1, (os.cpu_count() or 1) // parallel) if parallel > 1 else None
+        calls = [(task, cfgs, out_dirs, threads) for cfgs, out_dirs in members]
+        display = PopulationDisplay(names, parallel, every_s=self.progress_every_s)
+        if parallel == 1:
+            finished = ((index, run_group(*call)) for index, call in enumerate(calls))
+        else:  # as each population ends, whatever its place in the order; one bar per running population
+            finished = run_in_workers(calls, parallel, names, display)
+        outcomes: list[Outcome] = [[] for _ in calls]
+        start = time.monotonic()
+        try:
+            for done, (index, results) in enumerate(finished, 1):
+                outcomes[index] = results
+                display.write(done_line(done, len(calls), start, names[index], results))
+        finally:
+            display.close()
+        return outcomes
 
     def _task(self) -> str:
         """The population entry: ``task`` if set, else the one the app declares (``hydra_app(population=)``)."""

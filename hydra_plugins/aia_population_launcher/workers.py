@@ -65,6 +65,21 @@ def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | N
     return [(not isinstance(r, BaseException), r) for r in results]
 
 
+def run_stoppable(call: Call) -> tuple[str, object]:
+    """Run one population (:func:`run_group`) so that a stop signal ends it rather than the process:
+    ``("done", outcome)`` (its results picklable) or ``("stopped", exit status)`` (the task checkpointed and
+    stopped, :func:`aia.apps.train.exit_if_stopped`, or a signal came while no training loop was listening,
+    see :func:`_interrupting`). What a worker process and a population's SLURM job run."""
+    try:
+        with _interrupting():
+            outcome = run_group(*call)
+    except SystemExit as stop:
+        return "stopped", stop.code if isinstance(stop.code, int) else 1
+    except _Signalled as signalled:
+        return "stopped", 128 + signalled.signum
+    return "done", [(ok, _picklable(result)) for ok, result in outcome]
+
+
 def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], display: PopulationDisplay
                    ) -> Iterator[tuple[int, Outcome]]:
     """Run ``calls`` in ``processes`` worker processes, each call in the order given as a worker frees up;
@@ -188,20 +203,14 @@ def _serve(conn: Connection) -> None:
     launcher = _LauncherPipe(conn)
     try:
         while (call := conn.recv()) is not None:
-            try:
-                with _interrupting(), forwarding(lambda state: launcher.send(("progress", state))), \
-                        _LinesTo(launcher) as lines:
-                    try:
-                        outcome = run_group(*call)
-                    finally:
-                        lines.flush()
-            except SystemExit as stop:  # the task checkpointed and stopped (aia.apps.train.exit_if_stopped)
-                launcher.send(("stopped", stop.code if isinstance(stop.code, int) else 1))
+            with forwarding(lambda state: launcher.send(("progress", state))), _LinesTo(launcher) as lines:
+                try:
+                    kind, payload = run_stoppable(call)
+                finally:
+                    lines.flush()
+            launcher.send((kind, payload))
+            if kind == "stopped":
                 return
-            except _Signalled as signalled:  # while no training loop was listening (see _interrupting)
-                launcher.send(("stopped", 128 + signalled.signum))
-                return
-            launcher.send(("done", [(ok, _picklable(result)) for ok, result in outcome]))
     except (KeyboardInterrupt, EOFError):  # interrupted between populations, or the launcher is gone
         return
 

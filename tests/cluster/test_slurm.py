@@ -1,7 +1,8 @@
 """``aia-train -m hydra/launcher=slurm`` on a real scheduler (the local cluster of scripts/slurm_local.sh):
 a sweep runs end to end and its job that fails inside SLURM is reported as failed instead of waited on, a
-preempted job comes back and finishes its run through ``resume=auto``, and a population sweep sent as one batch
-job stops on the scheduler's signal and continues when submitted again."""
+preempted job comes back and finishes its run through ``resume=auto``, a population sweep sent as one batch
+job stops on the scheduler's signal and continues when submitted again, and ``hydra/launcher=population_slurm``
+runs a sweep's populations as SLURM tasks that requeue themselves at their time limit's signal and finish."""
 
 from __future__ import annotations
 
@@ -143,6 +144,58 @@ def test_a_population_sweep_sent_as_one_batch_job_stops_on_the_schedulers_signal
             assert torch.load(log.parent / "checkpoints" / "last.pt", weights_only=False)["state"]["frames"] == frames
     finally:
         subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
+
+
+def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at_its_time_limit(slurm_cluster,
+                                                                                                tmp_path):
+    """``hydra/launcher=population_slurm``: two populations of two, one SLURM task each. SIGUSR1 to both tasks
+    once all four jobs are training (what ``--signal=USR1@<s>`` sends before the time limit): each population
+    stops at an episode's end with its checkpoints, its batch script requeues its task, and the task, run again
+    (its 2-minute requeue delay cut short), continues with ``resume=auto`` to the end. The sweep succeeds with
+    every job's full history in its folder, in two log segments."""
+    sweep_dir, frames, steps, name = tmp_path / "sweep", 3000, 50, f"aia-test-{uuid.uuid4().hex[:8]}"
+    command = ["aia-train", "-m", "hydra/launcher=population_slurm", "hydra.launcher.cpus_per_task=1",
+               "hydra.launcher.mem_gb=1", "hydra.launcher.timeout_min=10", "hydra.launcher.poll_every_s=1",
+               f"hydra.launcher.name={name}", f"hydra.sweep.dir={sweep_dir}", "seed=0,1", "hidden=[16],[24]",
+               f"frames={frames}", "warmup_frames=50", f"env.max_steps={steps}", "eval.episodes=2",
+               "logger.record_every_evaluations=0"]
+    logs = [sweep_dir / str(job) / "run.mcap" for job in range(4)]
+    deadline = time.monotonic() + slurm_cluster.sweep_timeout_s
+    sweep = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env=slurm_cluster.env(), cwd=tmp_path)
+
+    def wait_until(done, what: str) -> None:
+        while not done():
+            assert time.monotonic() < deadline and sweep.poll() is None, f"{what}; squeue: {slurm_cluster.queue()}"
+            time.sleep(0.5)
+
+    try:
+        wait_until(lambda: all(log.exists() and "eval/score" in read_run(log).scalar_topics() for log in logs),
+                   "not every job logged an evaluation")
+        tasks = _squeue(name).split()
+        assert len(tasks) == 2, tasks
+        for task in tasks:
+            subprocess.run(["scancel", "--signal=USR1", task], check=True, timeout=30)
+        wait_until(lambda: _squeue(name, "%T").split() == ["PENDING", "PENDING"], "the tasks were not requeued")
+        for task in tasks:
+            subprocess.run(["scontrol", "update", f"JobId={task}", "StartTime=now"], check=True, timeout=30)
+        out, err = sweep.communicate(timeout=max(1.0, deadline - time.monotonic()))
+    finally:
+        if sweep.poll() is None:
+            sweep.kill()
+        subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
+    assert sweep.returncode == 0, err[-3000:]
+    assert "population launcher: 4 jobs in 2 populations of 2 members each" in out
+    assert "population launcher: 2/2 done after" in out and "failed" not in out
+    for log in logs:
+        assert (log.parent / "run.1.mcap").is_file()  # the requeued task's segment
+        run = read_run(log)
+        assert run.complete and run.failure is None, (log, run.failure)
+        assert run.scalars("eval/score").frames.tolist() == [float(steps * k) for k in range(1, frames // steps + 1)]
+        assert torch.load(log.parent / "checkpoints" / "last.pt", weights_only=False)["state"]["frames"] == frames
+    outputs = " ".join(path.read_text() for path in (sweep_dir / ".submitit").glob("*/*_log.out"))
+    assert outputs.count("its batch script requeues this SLURM task (restart 1 of at most 3)") == 2
+    assert outputs.count("run 2 of this SLURM task") == 2
 
 
 def _squeue(name: str, field: str = "%i") -> str:
