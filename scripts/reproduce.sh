@@ -18,6 +18,12 @@
 #                per setting, DQN with Double DQN and ADFQ-egreedy with ADFQ-TS each train all their seeds as one
 #                population, the largest populations first);  OUT  output folder [outputs/repro]
 #   FIGURES      where the figures and tables go [$OUT/figures]
+#   LAUNCHER     where the learners and ARVI run [population]: population (this machine, $JOBS processes) or
+#                population_slurm (a SLURM cluster: each learner population one task of a job array,
+#                hydra/launcher=population_slurm, and each ARVI seed one SLURM job, hydra/launcher=slurm; the
+#                figures are drawn here); give their resources in SLURM_OVERRIDES, e.g.
+#                SLURM_OVERRIDES="hydra.launcher.partition=cpu hydra.launcher.cpus_per_task=4" (keys both launchers
+#                have: partition, cpus_per_task, mem_gb, timeout_min, gpus_per_node) and TRAIN_OVERRIDES="threads=4"
 #   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
 #   ARVI_EPISODES  episodes per ARVI seed, planned together in one batch [5]
 #   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's], shared by a seed's episodes; each seed
@@ -44,13 +50,30 @@ ARVI_EPISODES=${ARVI_EPISODES:-5}
 ARVI_BUDGET=${ARVI_BUDGET:-1.0}
 METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
 ARVI_MIN_RANGES=${ARVI_MIN_RANGES-"0 2"}  # set but empty: no ARVI runs
+LAUNCHER=${LAUNCHER:-population}
+read -r -a SLURM_EXTRA <<< "${SLURM_OVERRIDES:-}"
+case "$LAUNCHER" in
+  population)
+    LEARNER_LAUNCHER=(hydra/launcher=population "hydra.launcher.n_jobs=$JOBS")
+    if [[ -n "${ARVI_NODES:-}" ]]; then
+      # a node budget is each seed's own in a batch: all seeds in $JOBS processes
+      ARVI_LAUNCHER=(hydra/launcher=population hydra.launcher.split_to_fill=true "hydra.launcher.n_jobs=$JOBS")
+    else
+      # a wall-clock budget is shared by everything planned together: one process per seed
+      ARVI_LAUNCHER=(hydra/launcher=local "hydra.launcher.n_jobs=$JOBS")
+    fi ;;
+  population_slurm)
+    LEARNER_LAUNCHER=(hydra/launcher=population_slurm "${SLURM_EXTRA[@]}")
+    ARVI_LAUNCHER=(hydra/launcher=slurm "${SLURM_EXTRA[@]}")  # one job per seed, whatever the budget
+    ;;
+  *)
+    echo "LAUNCHER='$LAUNCHER': expected population or population_slurm" >&2
+    exit 2 ;;
+esac
 if [[ -n "${ARVI_NODES:-}" ]]; then
-  # a node budget is each seed's own in a batch: all seeds in $JOBS processes
-  ARVI_BUDGET_AND_LAUNCHER=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES" hydra/launcher=population
-              hydra.launcher.split_to_fill=true)
+  ARVI_BUDGET=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
 else
-  # a wall-clock budget is shared by everything planned together: one process per seed
-  ARVI_BUDGET_AND_LAUNCHER=("planner.time_budget=$ARVI_BUDGET" hydra/launcher=local)
+  ARVI_BUDGET=("planner.time_budget=$ARVI_BUDGET")
 fi
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
@@ -108,17 +131,17 @@ baseline() {
 # One sweep of every setting's learners: DQN with Double DQN and ADFQ-egreedy with ADFQ-TS share a program
 # (aia/training/members.py), so each setting trains two populations of 2 x seeds members; the launcher starts
 # the largest populations first, $JOBS at a time.
-phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations, $JOBS at a time"
-aia-train -m hydra/launcher=population "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEEDS" threads=1 \
-  "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.launcher.n_jobs=$JOBS" "hydra.sweep.dir=$OUT/sweeps/learners" \
+phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations ($LAUNCHER)"
+aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEEDS" threads=1 \
+  "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.sweep.dir=$OUT/sweeps/learners" \
   "$(run_dir learners)" \
   'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
 ENVS=$(joined "${SETTING_LIST[@]}")
 for min_range in $ARVI_MIN_RANGES; do
   baseline "$min_range"
   phase "$label: $SETTINGS x seeds $ARVI_SEEDS"
-  aia-eval -m "hydra.launcher.n_jobs=$JOBS" policy=arvi "env=$ENVS" "seed=$ARVI_SEEDS" \
-    "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_AND_LAUNCHER[@]}" \
+  aia-eval -m "${ARVI_LAUNCHER[@]}" policy=arvi "env=$ENVS" "seed=$ARVI_SEEDS" \
+    "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET[@]}" \
     "hydra.sweep.dir=$OUT/sweeps/$name" "$(run_dir "$name")" \
     'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
 done

@@ -2,7 +2,8 @@
 a sweep runs end to end and its job that fails inside SLURM is reported as failed instead of waited on, a
 preempted job comes back and finishes its run through ``resume=auto``, a population sweep sent as one batch
 job stops on the scheduler's signal and continues when submitted again, and ``hydra/launcher=population_slurm``
-runs a sweep's populations as SLURM tasks that requeue themselves at their time limit's signal and finish."""
+runs a sweep's populations as SLURM tasks that requeue themselves at their time limit's signal and finish, as
+``scripts/reproduce.sh`` does with ``LAUNCHER=population_slurm``."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import shlex
 import subprocess
 import time
 import uuid
+from pathlib import Path
 
 import pytest
 import torch
@@ -19,6 +21,7 @@ import yaml
 
 from aia.logging import read_run
 from aia.objective import search_objective
+from tests.cluster.conftest import TEST_RESOURCES
 
 pytestmark = pytest.mark.xdist_group("slurm")  # one worker: the cluster is started once
 
@@ -196,6 +199,30 @@ def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at
     outputs = " ".join(path.read_text() for path in (sweep_dir / ".submitit").glob("*/*_log.out"))
     assert outputs.count("its batch script requeues this SLURM task (restart 1 of at most 3)") == 2
     assert outputs.count("run 2 of this SLURM task") == 2
+
+
+def test_reproduce_sh_sends_its_learners_and_arvi_to_slurm(slurm_cluster, tmp_path):
+    """``LAUNCHER=population_slurm scripts/reproduce.sh`` on a tiny budget: the learners' population as a task of a
+    job array, the ARVI seed as a SLURM job of its own, the table, curves and trajectory drawn here."""
+    script = Path(__file__).resolve().parents[2] / "scripts" / "reproduce.sh"
+    env = {**slurm_cluster.env(), "SETTINGS": "small2", "SEEDS": "0", "METHODS": "adfq_egreedy,adfq_ts",
+           "FRAMES": "300", "ARVI_SEEDS": "0", "ARVI_EPISODES": "1", "ARVI_NODES": "100", "ARVI_MIN_RANGES": "2",
+           "OUT": "out", "TRAIN_OVERRIDES": "compile.update=false compile.env=false compile.policy=false",
+           "LAUNCHER": "population_slurm", "SLURM_OVERRIDES": " ".join(TEST_RESOURCES)}
+    result = subprocess.run(["bash", str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                            timeout=slurm_cluster.sweep_timeout_s)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "2 jobs in 1 population of 2 members" in result.stdout
+    assert "population launcher: submitted as SLURM job array" in result.stdout
+    out = tmp_path / "out"
+    for method in ("adfq_egreedy", "adfq_ts"):
+        assert read_run(out / "small2" / "learners" / f"method={method},seed=0" / "run.mcap").complete
+    assert read_run(out / "small2" / "arvi_min2" / "seed=0" / "run.mcap").complete
+    # each phase's SLURM jobs left their submitit records in its sweep folder
+    assert list((out / "sweeps" / "learners" / ".submitit").glob("*/*_result.pkl"))
+    assert list((out / "sweeps" / "arvi_min2" / ".submitit").glob("*/*_result.pkl"))
+    assert "| algo=adfq, exploration=thompson | 1 |" in (out / "figures" / "small2.md").read_text()
+    assert (out / "figures" / "small2_trajectory.png").is_file()
 
 
 def _squeue(name: str, field: str = "%i") -> str:

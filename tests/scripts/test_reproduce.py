@@ -63,3 +63,10 @@ def test_an_unknown_setting_is_named(tmp_path):
     result = run_script(tmp_path, SETTINGS="empty9", OUT="out")
     assert result.returncode == 2
     assert "unknown setting 'empty9'" in result.stderr and "empty1 obstacles1 small2 small3" in result.stderr
+
+
+def test_an_unknown_launcher_is_named(tmp_path):
+    result = run_script(tmp_path, LAUNCHER="joblib", OUT="out")
+    assert result.returncode == 2
+    assert result.stderr == "LAUNCHER='joblib': expected population or population_slurm\n"
+    assert not (tmp_path / "out").exists()  # refused before anything was written
