@@ -35,10 +35,16 @@ from hydra_plugins.aia_population_launcher.workers import Call, Outcome, run_sto
 
 # What SLURM sends a task before its time limit (``--signal``), and what a population requeues itself on.
 REQUEUE_SIGNAL = signal.SIGUSR1
-# The exit status by which a population asks its batch script to requeue its task: the script's last line
-# (after the population's process has exited, so that nothing of it is killed by the requeue).
+# The exit status by which a population asks its batch script to requeue its task: the script's last lines
+# (after the population's process has exited, so that nothing of it is killed by the requeue). An array task
+# is named ``<array>_<task>``: its ``SLURM_JOB_ID`` may be the array's own id, which would requeue every task
+# (found on the local cluster, 2026-12-05: a task's requeue took its sibling along and failed).
 REQUEUE_STATUS = 128 + REQUEUE_SIGNAL
-REQUEUE_TEARDOWN = f'if [ $? -eq {REQUEUE_STATUS} ]; then scontrol requeue "$SLURM_JOB_ID"; fi'
+REQUEUE_TEARDOWN = [
+    "status=$?",
+    'task=${SLURM_ARRAY_JOB_ID:+${SLURM_ARRAY_JOB_ID}_${SLURM_ARRAY_TASK_ID}}',
+    f'if [ "$status" -eq {REQUEUE_STATUS} ]; then scontrol requeue "${{task:-$SLURM_JOB_ID}}"; fi',
+]
 
 
 class PopulationJob:
@@ -156,7 +162,7 @@ class PopulationSlurmLauncher(PopulationLauncher):
         executor.update_parameters(
             job_name=self.name, time=self.timeout_min, cpus_per_task=self.cpus_per_task, mem=f"{self.mem_gb}G",
             gpus_per_node=self.gpus_per_node, array_parallelism=self.array_parallelism, setup=self.setup_lines,
-            teardown=[REQUEUE_TEARDOWN],
+            teardown=REQUEUE_TEARDOWN,
             additional_parameters={**self.additional_parameters,
                                    "signal": f"{REQUEUE_SIGNAL.name[3:]}@{self.signal_delay_s}"},
             **({"partition": self.partition} if self.partition else {}))

@@ -83,12 +83,10 @@ def test_a_preempted_job_is_requeued_and_finishes_its_run_through_resume_auto(sl
         while _squeue(name, "%T") != "PENDING":  # requeued: pending until its begin time
             assert time.monotonic() < deadline, f"the job did not come back pending: {slurm_cluster.queue()}"
             time.sleep(0.5)
-        subprocess.run(["scontrol", "update", f"JobId={job_id}", "StartTime=now"], check=True, timeout=30)
+        _start_now(job_id)
         _, err = sweep.communicate(timeout=max(1.0, deadline - time.monotonic()))
     finally:
-        if sweep.poll() is None:
-            sweep.kill()
-            subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
+        _end(sweep, name)
     assert sweep.returncode == 0, err[-3000:]
     assert (sweep_dir / "0" / "run.1.mcap").is_file()  # the requeued job's segment
     run = read_run(log)
@@ -181,12 +179,10 @@ def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at
             subprocess.run(["scancel", "--signal=USR1", task], check=True, timeout=30)
         wait_until(lambda: _squeue(name, "%T").split() == ["PENDING", "PENDING"], "the tasks were not requeued")
         for task in tasks:
-            subprocess.run(["scontrol", "update", f"JobId={task}", "StartTime=now"], check=True, timeout=30)
+            _start_now(task)
         out, err = sweep.communicate(timeout=max(1.0, deadline - time.monotonic()))
     finally:
-        if sweep.poll() is None:
-            sweep.kill()
-        subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
+        _end(sweep, name)
     assert sweep.returncode == 0, err[-3000:]
     assert "population launcher: 4 jobs in 2 populations of 2 members each" in out
     assert "population launcher: 2/2 done after" in out and "failed" not in out
@@ -223,6 +219,21 @@ def test_reproduce_sh_sends_its_learners_and_arvi_to_slurm(slurm_cluster, tmp_pa
     assert list((out / "sweeps" / "arvi_min2" / ".submitit").glob("*/*_result.pkl"))
     assert "| algo=adfq, exploration=thompson | 1 |" in (out / "figures" / "small2.md").read_text()
     assert (out / "figures" / "small2_trajectory.png").is_file()
+
+
+def _start_now(job_id: str) -> None:
+    """Cut short the requeued (pending) job's requeue delay: it may start at once. Not in the second of the
+    requeue, though: slurmd refuses a job whose credential is no newer than the revocation of its previous run's
+    ("Killing non-startable batch JobId=62: Job credential revoked", seen twice in three runs on 2026-12-05)."""
+    time.sleep(2)
+    subprocess.run(["scontrol", "update", f"JobId={job_id}", "StartTime=now"], check=True, timeout=30)
+
+
+def _end(sweep: subprocess.Popen, name: str) -> None:
+    """After a test: kill its sweep if it still runs and cancel whatever of its jobs (named ``name``) is left."""
+    if sweep.poll() is None:
+        sweep.kill()
+    subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
 
 
 def _squeue(name: str, field: str = "%i") -> str:

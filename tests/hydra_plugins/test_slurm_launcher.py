@@ -255,7 +255,7 @@ def test_the_launcher_submits_each_population_as_a_task_and_says_as_they_start_a
     assert "population launcher: 2/2 done after 0:00: jobs 0, 2\n" in out
     parameters = _FakeExecutor.last.parameters
     assert parameters["additional_parameters"] == {"signal": "USR1@300"}
-    assert parameters["teardown"] == [slurm.REQUEUE_TEARDOWN]
+    assert parameters["teardown"] == slurm.REQUEUE_TEARDOWN
     assert (parameters["time"], parameters["cpus_per_task"], parameters["mem"]) == (720, 4, "16G")
     assert parameters["job_name"] == "aia-train" and "partition" not in parameters
 
@@ -282,3 +282,19 @@ def test_an_array_that_sbatch_refuses_gets_one_line_naming_the_refusal(entry, tm
         "aia-train: error: hydra.launcher='sbatch: error: invalid partition specified: nope': expected settings "
         "this cluster's sbatch accepts (partition, timeout_min, cpus_per_task, gpus_per_node, mem_gb, "
         "additional_parameters); nothing was submitted\n")
+
+
+@pytest.mark.parametrize("status, env, requeued", [
+    (slurm.REQUEUE_STATUS, {"SLURM_JOB_ID": "54", "SLURM_ARRAY_JOB_ID": "53", "SLURM_ARRAY_TASK_ID": "1"}, "53_1"),
+    (slurm.REQUEUE_STATUS, {"SLURM_JOB_ID": "53", "SLURM_ARRAY_JOB_ID": "53", "SLURM_ARRAY_TASK_ID": "1"}, "53_1"),
+    (slurm.REQUEUE_STATUS, {"SLURM_JOB_ID": "13"}, "13"),  # a single population: a job, not an array
+    (0, {"SLURM_JOB_ID": "13"}, None),
+    (128 + signal.SIGTERM, {"SLURM_JOB_ID": "13"}, None),
+])
+def test_the_batch_script_requeues_its_own_task_only_when_the_population_asks(status, env, requeued):
+    """The teardown lines after the population's process (exit ``status``) call ``scontrol requeue`` with the
+    task's own name: an array task's ``SLURM_JOB_ID`` can be the array's id, which would requeue every task."""
+    script = "scontrol() { echo \"$@\"; }\n" + f"(exit {status})\n" + "\n".join(slurm.REQUEUE_TEARDOWN)
+    out = subprocess.run(["bash", "-c", script], env={"PATH": os.environ["PATH"], **env}, capture_output=True,
+                         text=True, check=True, timeout=30).stdout
+    assert out == (f"requeue {requeued}\n" if requeued else "")
