@@ -71,9 +71,9 @@ case "$LAUNCHER" in
     exit 2 ;;
 esac
 if [[ -n "${ARVI_NODES:-}" ]]; then
-  ARVI_BUDGET=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
+  ARVI_BUDGET_OVERRIDES=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
 else
-  ARVI_BUDGET=("planner.time_budget=$ARVI_BUDGET")
+  ARVI_BUDGET_OVERRIDES=("planner.time_budget=$ARVI_BUDGET")
 fi
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
@@ -141,7 +141,7 @@ for min_range in $ARVI_MIN_RANGES; do
   baseline "$min_range"
   phase "$label: $SETTINGS x seeds $ARVI_SEEDS"
   aia-eval -m "${ARVI_LAUNCHER[@]}" policy=arvi "env=$ENVS" "seed=$ARVI_SEEDS" \
-    "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET[@]}" \
+    "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_OVERRIDES[@]}" \
     "hydra.sweep.dir=$OUT/sweeps/$name" "$(run_dir "$name")" \
     'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
 done
