@@ -4,7 +4,7 @@ glibc's ``malloc`` serves large blocks (128 KiB and up, a threshold it raises as
 ``mmap`` and returns them with ``munmap`` when freed, and trims the top of its heap when that much is free: the
 next allocation of the same size then faults its pages in again, each zeroed by the kernel. PyTorch's CPU
 allocator calls ``malloc`` for every tensor, so a training step that allocates and frees the same activations,
-gradients and temporaries each time pays for fresh pages each time. Measured on the 2-core VM (2026-12-04, a
+gradients and temporaries each time pays for fresh pages each time. Measured on the 2-core CPU (a
 population of 10 DQN and Double DQN members of setting 4, 3 x 256, bfloat16 inner layers, compiled, one thread,
 2,500 frames): 2.2-3.0 million page faults and 22.8-26.3 s of update with glibc's defaults, 0.32 million and
 19.3-19.4 s with :func:`keep_freed_memory`; the ARVI planner keeps its own buffers (``ARVIPlanner.storage``).

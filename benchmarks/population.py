@@ -12,7 +12,7 @@
    (evaluations come in lumps: a short job plays a whole evaluation rollout for a point or two, a long run
    ``eval.per_rollout`` points per rollout, so this share depends on the job's length), and
    ``member_frames_per_s_wall_clock`` is the jobs' wall-clock difference, which also carries the set-up that
-   differs between two jobs (twice on 2026-12-02 it came out 1.7x off the phase sum). Each row also gives the
+   differs between two jobs (twice it came out 1.7x off the phase sum). Each row also gives the
    arithmetic it does (the updates' and the acting's matmul FLOPs per member-frame) as a share of this
    machine's measured matmul rate (``sgemm_gflops``, all threads), the ceiling a batched program can reach,
    and the time one update's batched products take alone on their own shapes (``update_matmuls_ms``, the
@@ -40,7 +40,7 @@ stalls every step.
 ``--repeats N`` measures every population size N times, round by round (each round's sizes one after another,
 so that they meet the same VM): each row gives the median rate and the range, and the ratio to the P = 1 run of
 the same round (median and range). A P = 1 job of a few hundred frames lasts seconds and swings with the VM's
-speed (2026-12-03: 163-489 member-frames/s for the same DQN row in three runs), so a ratio from one round says
+speed (163-489 member-frames/s for the same DQN row in three runs of one day), so a ratio from one round says
 little.
 
 Prints a table and writes JSON (default ``benchmarks/results/population_<device>.json``); its ``meta`` names the

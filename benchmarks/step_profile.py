@@ -6,7 +6,7 @@ compiles (so the profiled job reuses the compiled code, as the benchmark's measu
 records its steady steps, from the 11th update to the last. For each mode it prints their time a step and the
 ops with the most self time on the host and, on CUDA, on the device, with their calls a step; the calls of the
 CUDA runtime (kernel launches, copies, synchronisations) say how much a step asks of the host. Written for the
-question the GPU sessions of 2026-12-04 left open (compiled CUDA jobs ran slower than eager ones); on the CPU it
+question the first GPU sessions left open (compiled CUDA jobs ran slower than eager ones); on the CPU it
 shows the same split.
 
 Prints the tables and writes JSON (default ``benchmarks/results/step_profile_<device>.json``); ``--traces DIR``

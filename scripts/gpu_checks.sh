@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The checks a GPU session runs, in one call, in the order of what matters most: an op-by-op profile of a
 # population's steady steps eager and compiled (benchmarks/step_profile.py: why compiled CUDA jobs ran slower
-# than eager ones on 2026-12-04), the eager population rows with a count of the loop's host-device syncs, the
+# than eager ones on an H200), the eager population rows with a count of the loop's host-device syncs, the
 # compiled rows (with dynamo's recompile and graph-break log), the quick start and a population sweep with
 # device=cuda. STEPS picks some of them (a device command may run 10 minutes at most). Each step has
 # its own time limit and writes its log (and the benchmarks their JSON) under $OUT as it goes, so a run cut short

@@ -78,7 +78,7 @@ class SnapshotPolicy(TensorDictModuleBase):
         """``[G, P, E]`` argmax actions of snapshot ``g`` on its members' groups (``grouped``: ``[G, P, E, ...]``).
 
         ``torch.vmap`` over the snapshots rather than one forward of ``G * P`` members, which was 7 % faster in
-        a training run's evaluations (bfloat16 inner layers, 2026-12-03) but rounds differently (5e-8 in
+        a training run's evaluations (bfloat16 inner layers) but rounds differently (5e-8 in
         float32), so that a near tie could flip an action: evaluation scores are results, and float32 runs
         reproduce earlier commits' to the digit."""
         return torch.func.vmap(self._values)(params, grouped).argmax(-1)

@@ -7,8 +7,8 @@ losses reach each member's slice exactly as its own loss's gradients would. Beca
 inside the network, TorchRL's ``DQNLoss`` and :class:`~aia.losses.ADFQLoss` run unchanged on batches shaped
 ``[P, B]`` (they are shape-agnostic); no ``vmap`` over the loss is needed.
 
-Why not ``torch.vmap`` over the loss with ``TensorDict.from_modules`` parameters: measured on the 2-core CPU
-(2026-12-01, 3 x 128, batch 64, forward and backward), vmapped ``DQNLoss`` took 6-22 ms per update at P = 1
+Why not ``torch.vmap`` over the loss with ``TensorDict.from_modules`` parameters: measured on a 2-core CPU
+(3 x 128, batch 64, forward and backward), vmapped ``DQNLoss`` took 6-22 ms per update at P = 1
 and 14-44 ms at P = 20, and ``torch.compile`` around it did not help (graph breaks), against about 1.6 ms at
 P = 1 and 0.68 ms per member at P = 20 for a batched-linear network (``benchmarks/population.py`` measures
 both).

@@ -59,7 +59,7 @@ def make_loss(cfgs: Sequence[DictConfig], actor: TensorDictSequential) -> LossMo
                    double_dqn=all(double), action_space="categorical", reduction="none")
     # the estimator's buffers (its discount) made on the run's device: TorchRL would make them on the CPU and
     # move them at the first call, and a compiled update traced then would compile again at the second (found
-    # on an H200, 2026-12-04: a recompile inside the measured steps of every compiled CUDA job)
+    # on an H200: a recompile inside the measured steps of every compiled CUDA job)
     if len(set(double)) > 1:
         return use_memberwise_double(loss, double, cfg.gamma, cfg.device)
     loss.make_value_estimator(gamma=cfg.gamma, device=cfg.device)

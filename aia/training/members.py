@@ -96,7 +96,7 @@ def _families_note() -> str:
 def population_work(cfgs: Sequence[DictConfig]) -> float:
     """A rough relative cost of running ``cfgs`` as one population, to start the largest first: members x frames
     (an evaluation: episodes) x (1 + the hidden layers' total width / 256), x 1.2 for ADFQ. Fitted to the
-    protocol's populations of 10 on the 2-core CPU (2026-12-03, bfloat16 inner layers): per member-frame a 3 x 256
+    protocol's populations of 10 on the 2-core CPU (bfloat16 inner layers): per member-frame a 3 x 256
     population took 1.6-1.7x a 3 x 128 one, an ADFQ population 1.14-1.20x a DQN + Double DQN one."""
     first = cfgs[0]
     length = first.get("frames") or first.get("episodes") or 1

@@ -14,8 +14,8 @@ Why a hand-written Adam: ``torch.optim.Adam`` takes one learning rate per parame
 tensor cannot be split across groups, so per-member learning rates need the step written out. Written out,
 it also compiles into one graph with the loss and its backward (``compile=True``): a whole update of the
 paper's 3 x 256 ADFQ network took 1.3-1.8 ms on the 2-core CPU, against 2.2 ms with ``torch.optim.adam``'s
-own arithmetic traced into the graph, which recomputed its bias corrections per element (2026-11-30,
-``benchmarks/train_throughput.py``).
+own arithmetic traced into the graph, which recomputed its bias corrections per element
+(``benchmarks/train_throughput.py``).
 """
 
 from __future__ import annotations
@@ -96,9 +96,9 @@ class Updater:
             # Two or more members' step is two graphs (to the clipping factors; Adam): torch 2.13's CPU inductor
             # fuses their per-member norms into Adam's in-place updates and crashes (KeyError 'bufN',
             # pytorch/pytorch#196570). One member keeps one graph: 0.94-1.01 against 1.65-1.86 ms per 3x128
-            # update in 2,000-frame jobs (2026-12-02). Two compiled functions rather than a graph break in one:
+            # update in 2,000-frame jobs. Two compiled functions rather than a graph break in one:
             # dynamo traced the step twice to place the break, 2.3 s of each population's first update (5
-            # members of 3 x 256, 2026-12-03), and the clipping factor now multiplies inside Adam's kernel.
+            # members of 3 x 256), and the clipping factor now multiplies inside Adam's kernel.
             self._step = functools.partial(update_step, gradients=compiled_update(clipped_gradients),
                                            adam=compiled_update(clipped_adam_update))
 

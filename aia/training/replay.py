@@ -9,7 +9,7 @@ sampler has no state but that count, and sampling needs no host sync on CUDA.
 Why not TorchRL's ``LazyTensorStorage`` (which this class used before): its ``set`` and ``get`` index the
 ``[capacity, P]`` TensorDict through TensorDict's generic indexing, which costs more than the copies. Writing
 each leaf with ``index_copy_`` and sampling each leaf with ``index_select`` into a batch allocated once measured
-(2026-12-02, 2-core VM under load, one thread, the DQN loss's 6 leaves, three repeats in one run; `extend` of one
+(2-core CPU under load, one thread, the DQN loss's 6 leaves, three repeats in one run; `extend` of one
 step / `sample` of 64): at P = 1, 341-412 / 135-188 us with ``LazyTensorStorage`` against 42-57 / 40-75 us;
 at P = 20, 271-395 / 477-711 against 53-90 / 149-291 us. That is about 0.4 ms of a paper-regime frame of ~4 ms.
 """

@@ -6,7 +6,7 @@ buffer of 1,000 transitions, a batch of 64, a target copy every 51 updates) the 
 51 x 64 = 3,264 sampled transitions per target period; the cache computes it for the buffer's 1,000 rows at the
 period's start and for each transition as it is written (one per member per frame), and the update reads it
 with the sampled rows. The arithmetic is the same, row by row (a test checks the cached targets against the
-loss's own to the bit). Measured on the 2-core CPU (2026-12-03, one thread, 10 members of the 3 x 256 ADFQ
+loss's own to the bit). Measured on the 2-core CPU (one thread, 10 members of the 3 x 256 ADFQ
 network, bfloat16 inner layers, compiled): the update step 9.7-11.4 ms with cached targets against
 17.8-20.7 ms computing them; the buffer's refresh 124-158 ms per period (2.4-3.1 ms a step; 109-157 ms in
 chunks, see ``_CHUNK_TRANSITIONS``) and a written transition's targets 0.5-1.8 ms a step (among 4, see
@@ -27,18 +27,18 @@ from aia.training.replay import MemberReplay
 
 # Transitions per member that a write's targets are computed on, the first repeated to fill: the target network
 # sees each transition's two observations, and torch 2.13's CPU batched matmul rounds float32 rows of a
-# multiplication of 1-3 rows otherwise than the same rows among 4 or more (tested on this VM for every paper
+# multiplication of 1-3 rows otherwise than the same rows among 4 or more (tested for every paper
 # layer shape): with 4 rows or more, a row's target is the one the buffer's refresh computes, to the bit.
 _MIN_WRITTEN = 4
 
 # The refresh's network calls take a multiple of this many rows (repeating some): with one member and two threads,
 # MKL splits a call's rows between the threads, and a thread's share of other than a multiple of 4 rows rounds
-# its last rows otherwise (2026-12-04: the last 2 of 10 rows, against the same rows among 4 or 128).
+# its last rows otherwise (measured: the last 2 of 10 rows, against the same rows among 4 or 128).
 _NETWORK_ROWS_MULTIPLE = 8
 
 
 # Transitions (rows x members) whose targets the buffer's refresh computes at a time: the posterior's per-action
-# intermediates of about this many transitions fit in a core's L2 cache. Measured (2026-12-03, one thread, 10
+# intermediates of about this many transitions fit in a core's L2 cache. Measured (one thread, 10
 # members, 12 actions, compiled): the posterior of the buffer's 10,000 transitions took 53 ms in chunks of 125
 # rows against 85 ms at once (and 56-57 ms in chunks of 50 or 250 rows), with the same results to the bit.
 _CHUNK_TRANSITIONS = 1250
@@ -146,7 +146,7 @@ class TargetCache:
         the ``s'`` of the row written ``worlds`` rows before (the same world's previous step; not so at an
         episode's first step and at the write cursor): a row's network outputs do not depend on the other rows
         of its call (see ``_MIN_WRITTEN``), so a shared row's beliefs at ``s`` are those its own call would
-        give. Rows not yet filled are left out (never sampled). Measured on the 2-core VM (2026-12-04, 20 members
+        give. Rows not yet filled are left out (never sampled). Measured on the 2-core CPU (20 members
         of 3 x 256, compiled, a full buffer of 1,000 rows, two jobs each): a refresh took 117 ms against 150-177
         ms with the network on both observations of every row, 1.9 against 2.5-2.9 ms a step."""
         rows = self.replay.rows
@@ -241,9 +241,9 @@ class _StagedRows:
     """Buffers, allocated once, that a write's ``[T, P]`` transitions are copied into for :meth:`TargetCache.record`:
     at least ``_MIN_WRITTEN`` rows, the rows past ``T`` holding earlier staged transitions (the first one, at
     first; a row's targets do not depend on the other rows' values, only on their number: see ``_MIN_WRITTEN``),
-    handed to the targets' graph as ``[P, rows]`` views marked dynamic once. Before, each write concatenated the
-    repeated rows as a tensordict and read its keys and the result through tensordict calls: 0.35 ms of Python a
-    write. Measured on the 2-core VM (2026-12-04, compiled ADFQ-TS 3 x 256, three interleaved rounds), a write's
+    handed to the targets' graph as ``[P, rows]`` views marked dynamic once. Concatenating the
+    repeated rows as a tensordict and reading its keys and the result through tensordict calls cost 0.35 ms of
+    Python a write. Measured on the 2-core CPU (compiled ADFQ-TS 3 x 256, three interleaved rounds), a write's
     targets took 0.42-0.47 against 0.74-0.83 ms for one member and 1.68-1.97 against 2.12-2.25 ms for twenty,
     with the same targets to the bit."""
 
