@@ -1,0 +1,195 @@
+"""The code blocks of README.md and docs/*.md run as written: every ```python block (but those of
+``PYTHON_IMPORTS_ONLY``, whose imports run, each with the reason), and the ```bash lines that are cheap. Every
+other bash line must match one of ``EXCLUDED`` (a pattern and the reason it is not run here), so a new command
+in the docs is either run or excluded with its reason.
+
+The python blocks of one page run in order in one namespace, in a scratch folder, seeded; their sizes are the
+docs' own (small). The bash lines run in the same scratch folder, a run's log placeholder
+(``outputs/<date>/<time>/run.mcap``) standing for the log that docs/logging.md's python block writes.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+FENCE = re.compile(r"^( *)```(\w*)\n(.*?)^\1```", re.S | re.M)
+
+# bash lines run as written (after the placeholder of a run's log is replaced): cheap, a few seconds in all
+RUN = {
+    "aia-log summary outputs/<date>/<time>/run.mcap",
+    "aia-log scalars outputs/<date>/<time>/run.mcap --topic eval/score",
+}
+RUN_LOG = "outputs/<date>/<time>/run.mcap"
+
+# every other bash line: (pattern, why it is not run here); the first that matches counts
+EXCLUDED = [
+    (r"^python3 -m venv ", "the quick start's install: CI (.ci/run) runs it in a fresh venv, and runs the "
+                           "README's test command exactly"),
+    (r"(^|\s)scripts/reproduce\.sh$", "the paper's protocol (minutes to half an hour); tests/scripts/"
+                                      "test_reproduce.py runs a small call of the script"),
+    (r"^scripts/slurm_local\.sh ", "installs and starts a local SLURM (root, apt-get); tests/cluster/ run it"),
+    (r"^(sinfo|squeue|sacct|sbatch|scancel)\b", "a SLURM client: tests/cluster/ use them on the local cluster"),
+    (r"^(#!|#SBATCH|exec )", "a batch script's lines, for sbatch"),
+    (r"^aia-train .*(hydra/launcher=(slurm|population_slurm)|hydra/sweeper=)",
+     "needs a SLURM cluster or runs a search: tests/cluster/, tests/apps/test_search.py"),
+    (r"^aia-train --help$", "loads Hydra, TorchRL and the training stack (about 7 s): tests/apps/"
+                            "test_bad_inputs.py runs every app's --help"),
+    (r"^aia-train( |$)", "trains for a minute or more: tests/apps/test_train_app.py and tests/training/ run the "
+                         "app and the loop on tiny configs"),
+    (r"^aia-eval ", "evaluates a checkpoint or plans for seconds to minutes: tests/apps/test_evaluate.py runs "
+                    "the app on tiny configs"),
+    (r"^aia-rollout( |$)", "rolls out 64-256 worlds of 100-150 steps: tests/apps/test_rollout.py"),
+    (r"^aia-log (plot|render|scalars '|<command>)", "needs a sweep's logs, draws figures, or is a placeholder: "
+                                                    "tests/apps/test_log_cli.py covers each command"),
+    (r"^python -m aia\.timing$", "measures the matmul rate for seconds: tests/test_timing.py"),
+    (r"^python benchmarks/", "a benchmark runs for minutes; its figures are in benchmarks/results/"),
+]
+
+# pages whose python blocks only have their imports run (the rest is compiled, not run), and why
+PYTHON_IMPORTS_ONLY = {
+    "planner.md": "its ARVI episodes first compile the planner's numba kernels, about 15 s in a fresh clone; "
+                  "tests/planners/test_arvi.py plays ARVIPolicy episodes through run_episodes as the block does",
+}
+
+pytestmark = pytest.mark.xdist_group("docs")  # the bash lines read the log that a python block writes
+
+
+def blocks(page: Path, language: str) -> list[tuple[int, str]]:
+    """(first line number, code) of each fenced block of ``language`` in ``page``."""
+    text = page.read_text()
+    found = []
+    for match in FENCE.finditer(text):
+        if match.group(2) == language:
+            indent = len(match.group(1))
+            code = "\n".join(line[indent:] for line in match.group(3).splitlines())
+            found.append((text[: match.start()].count("\n") + 2, code))
+    return found
+
+
+def bash_lines(page: Path) -> list[tuple[int, str]]:
+    """(line number, command) of each command of the page's bash blocks: continuations joined, comments and
+    blank lines dropped (a batch script's ``#!``/``#SBATCH`` lines kept)."""
+    lines = []
+    for first, code in blocks(page, "bash"):
+        pending, start = "", first
+        for number, raw in enumerate(code.splitlines(), first):
+            line = raw.strip()
+            if not pending:
+                start = number
+            if line.startswith(("#!", "#SBATCH")):
+                lines.append((number, line))
+                continue
+            line = re.sub(r"\s+#\s.*$", "", line) if not line.startswith("#") else ""
+            if line.endswith("\\"):
+                pending += line[:-1].strip() + " "
+                continue
+            command = (pending + line).strip()
+            pending = ""
+            if command:
+                lines.append((start, command))
+    return lines
+
+
+def classify(command: str) -> str | None:
+    """None for a line that runs; else the reason it does not."""
+    if command in RUN:
+        return None
+    for pattern, reason in EXCLUDED:
+        if re.search(pattern, command):
+            return reason
+    raise AssertionError(f"a bash line of the docs is neither run nor excluded: {command!r} (add it to RUN if it "
+                         "is cheap, else a pattern and its reason to EXCLUDED in tests/test_docs.py)")
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("docs")
+
+
+def run_python_blocks(page: Path, folder: Path) -> None:
+    namespace: dict = {"__name__": f"docs_{page.stem}"}
+    cwd = Path.cwd()
+    os.chdir(folder)
+    try:
+        torch.manual_seed(0)
+        for first, code in blocks(page, "python"):
+            compiled = compile(code, f"{page.relative_to(ROOT)}:{first}", "exec")
+            if page.name in PYTHON_IMPORTS_ONLY:
+                imports = [line for line in code.splitlines() if line.startswith(("from ", "import "))]
+                compiled = compile("\n".join(imports), f"{page.relative_to(ROOT)}:{first}", "exec")
+            exec(compiled, namespace)
+    finally:
+        os.chdir(cwd)
+
+
+@pytest.fixture(scope="module")
+def run_log(scratch) -> Path:
+    """The log docs/logging.md's python block writes."""
+    run_python_blocks(ROOT / "docs" / "logging.md", scratch)
+    path = scratch / "demo" / "run.mcap"
+    assert path.is_file()
+    return path
+
+
+PYTHON_PAGES = [page for page in PAGES if blocks(page, "python")]
+
+
+@pytest.mark.parametrize("page", PYTHON_PAGES, ids=[page.name for page in PYTHON_PAGES])
+def test_python_blocks_run_as_written(page, scratch, run_log):
+    if page.name != "logging.md":  # run by the run_log fixture
+        run_python_blocks(page, scratch)
+
+
+def test_every_bash_line_is_run_or_excluded_with_a_reason():
+    commands = [command for page in PAGES for _, command in bash_lines(page)]
+    assert RUN <= set(commands), f"RUN lists lines no page has: {RUN - set(commands)}"
+    reasons = {classify(command) for command in commands}
+    assert all(reason for reason in reasons - {None})
+
+
+def test_cheap_bash_lines_run_as_written(scratch, run_log):
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    ran = set()
+    for page in PAGES:
+        for number, command in bash_lines(page):
+            if classify(command) is not None or command in ran:
+                continue
+            ran.add(command)
+            argv = [str(run_log) if word == RUN_LOG else word for word in shlex.split(command)]
+            done = subprocess.run(argv, cwd=scratch, env=env, capture_output=True, text=True, timeout=120)
+            assert done.returncode == 0, f"{page.name}:{number}: {command}\n{done.stdout}\n{done.stderr}"
+    assert ran == RUN
+
+
+def test_links_between_the_pages_resolve():
+    """Every relative link of README.md and docs/ names a file that exists, and its #anchor a heading there."""
+    for page in PAGES:
+        text = FENCE.sub("", page.read_text())
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+:", target):
+                continue
+            path, _, anchor = target.partition("#")
+            linked = (page.parent / path).resolve() if path else page
+            assert linked.exists(), f"{page.name}: a link to {target}"
+            if anchor and linked.suffix == ".md":
+                headings = re.findall(r"^#+ (.+)$", FENCE.sub("", linked.read_text()), re.M)
+                slugs = {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in headings}
+                assert anchor in slugs, f"{page.name}: a link to {target}: no such heading"
+
+
+def test_the_readme_is_a_guide():
+    """At most 150 lines, no dates, and the test command CI runs."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 150
+    assert not re.search(r"\b20\d\d-\d\d-\d\d\b", text)
+    assert "python -m pytest -q" in text
