@@ -76,11 +76,7 @@ def update_cov(cov: Tensor, jacobian: Tensor, meas_noise: Tensor) -> tuple[Tenso
     """
     cov_ht = bmm(cov, jacobian.mT)
     innovation = bmm(jacobian, cov_ht) + meas_noise
-    a, b, c, d = innovation[..., 0, 0], innovation[..., 0, 1], innovation[..., 1, 0], innovation[..., 1, 1]
-    inverse = torch.stack((torch.stack((d, -b), -1), torch.stack((-c, a), -1)), -2) / (a * d - b * c)[
-        ..., None, None
-    ]
-    gain = bmm(cov_ht, inverse)
+    gain = bmm(cov_ht, inverse2(innovation))
     reduce = torch.eye(cov.shape[-1], dtype=cov.dtype, device=cov.device) - bmm(gain, jacobian)
     updated = bmm(bmm(reduce, cov), reduce.mT) + bmm(bmm(gain, meas_noise), gain.mT)
     return 0.5 * (updated + updated.mT), gain
@@ -100,6 +96,13 @@ def update(
     residual = torch.stack((residual[..., 0], wrap_angle(residual[..., 1])), dim=-1)
     mean_post = mean + bmm(gain, residual.unsqueeze(-1)).squeeze(-1)
     return mean_post, cov_post
+
+
+def inverse2(matrix: Tensor) -> Tensor:
+    """Closed-form inverse of ``[..., 2, 2]`` matrices (the innovation covariances)."""
+    a, b, c, d = matrix[..., 0, 0], matrix[..., 0, 1], matrix[..., 1, 0], matrix[..., 1, 1]
+    adjugate = torch.stack((torch.stack((d, -b), -1), torch.stack((-c, a), -1)), -2)
+    return adjugate / (a * d - b * c)[..., None, None]
 
 
 def logdet(cov: Tensor) -> Tensor:

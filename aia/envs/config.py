@@ -16,7 +16,10 @@ from typing import Optional
 from hydra.core.config_store import ConfigStore
 
 from aia.checks import check_choice, check_number, require
+from aia.envs.belief_models import BELIEF_MODELS, CONTROLS
+from aia.envs.filters import FILTERS
 from aia.envs.maps import check_start_margin, load_map
+from aia.envs.targets import TARGET_MODELS
 
 
 @dataclass
@@ -31,11 +34,23 @@ class RobotConfig:
 
 @dataclass
 class TargetConfig:
-    """Double-integrator targets (SPEC 3)."""
+    """The true targets (SPEC 3; the models of aia.envs.targets)."""
 
+    # "double_integrator" (SPEC 3), "se2_sine" (ttenv v2) or "se2_constant" (ttenv v3).
+    model: str = "double_integrator"
+    # double_integrator: process noise; se2_constant: the noise of its speeds' random walk.
     q: float = 0.01
-    # None: no limit on the true target's speed (2019 code); a number rescales the velocity to that norm.
+    # None: no limit on the true target's speed (2019 code); a number rescales the velocity to that norm
+    # (double_integrator) or clips the linear speed (the se2 models).
     speed_limit: Optional[float] = None
+    # se2 models: the angular speed is clipped to +-this (None: no limit).
+    angular_speed_limit: Optional[float] = None
+    # se2_sine: the curve y = amplitude sin(frequency x), followed step_length further each step; a blocked
+    # target starts a new curve turned by U(-turn_on_collision, turn_on_collision).
+    sine_step: float = 0.1
+    sine_frequency: float = 0.5
+    sine_amplitude: float = 5.0
+    turn_on_collision: float = math.pi / 4
     # On a colliding move the target keeps its position and its velocity becomes gain * v + N(0, std^2).
     reflect_gain: float = -0.4
     reflect_noise_std: float = 0.2
@@ -59,11 +74,27 @@ class SensorConfig:
 
 @dataclass
 class BeliefConfig:
-    """Per-target Kalman filter (SPEC 5)."""
+    """Per-target belief filter (SPEC 5; aia.envs.filters)."""
 
+    # "kf" (SPEC 5's extended Kalman filter; double_integrator model only) or "ukf" (unscented).
+    filter: str = "kf"
+    # The motion model the filter assumes (aia.envs.belief_models): "double_integrator", "se2" or
+    # "se2_velocity"; None: the true targets' own (se2_sine -> se2, se2_constant -> se2_velocity).
+    model: Optional[str] = None
+    # se2 model: the unknown target control the filter assumes, "zero" or "random" (ttenv's draw).
+    control: str = "zero"
+    # ukf: Julier's sigma-point spread kappa (ttenv: 1).
+    ukf_kappa: float = 1.0
     # Process noise the filter assumes; None: the targets' true q.
     q: Optional[float] = None
     init_cov: float = 30.0
+    # Where an episode's beliefs and targets start. "target": the target at target.init_distance from the
+    # robot, the belief mean offset from it by init_offset_shape / init_offset. "robot" (ttenv): the belief
+    # mean at init_distance from the robot, the target within init_offset of it and init_offset_angle of the
+    # direction from the robot to the belief.
+    init_anchor: str = "target"
+    init_distance: list[float] = field(default_factory=lambda: [5.0, 20.0])
+    init_offset_angle: float = math.pi
     # Initial mean offset from the true target: "disk" (distance uniform in [0, size]) or "box" (+-size).
     init_offset_shape: str = "disk"
     init_offset: float = 5.0
@@ -126,6 +157,10 @@ class TrackingConfig:
 
 
 _CHOICES = {
+    "target.model": TARGET_MODELS,
+    "belief.filter": tuple(FILTERS),
+    "belief.control": CONTROLS,
+    "belief.init_anchor": ("target", "robot"),
     "belief.init_offset_shape": ("disk", "box"),
     "features.relative_velocity": ("exact", "2019"),
     "reward.target_aggregate": ("mean", "sum"),
@@ -134,11 +169,14 @@ _CHOICES = {
 }
 _POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "target.init_candidates")
 _POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing",
-             "belief.init_cov")
+             "belief.init_cov", "target.sine_step", "belief.ukf_kappa")
 _NON_NEGATIVE = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin", "belief.init_offset",
-                 "reward.obstacle_margin", "reward.collision_penalty")
-_NUMBERS = ("target.reflect_gain", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
-_POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit")
+                 "reward.obstacle_margin", "reward.collision_penalty", "target.turn_on_collision",
+                 "belief.init_offset_angle")
+_NUMBERS = ("target.reflect_gain", "target.sine_frequency", "target.sine_amplitude", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
+_POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit", "target.angular_speed_limit")
+# The filter's model when belief.model is null: the true targets' own.
+DEFAULT_BELIEF_MODEL = {"double_integrator": "double_integrator", "se2_sine": "se2", "se2_constant": "se2_velocity"}
 
 
 def _get(cfg: TrackingConfig, dotted: str):
@@ -146,6 +184,11 @@ def _get(cfg: TrackingConfig, dotted: str):
     for part in dotted.split("."):
         value = getattr(value, part)
     return value
+
+
+def belief_model_name(cfg: TrackingConfig) -> str:
+    """The motion model the setting's filter assumes: ``belief.model``, or the true targets' own."""
+    return cfg.belief.model or DEFAULT_BELIEF_MODEL[cfg.target.model]
 
 
 def validate(cfg: TrackingConfig) -> None:
@@ -165,10 +208,14 @@ def validate(cfg: TrackingConfig) -> None:
         check_number(f"env.{name}", _get(cfg, name), gt=0, optional=True)
     check_number("env.belief.q", cfg.belief.q, ge=0, optional=True)
     check_number("env.sensor.fov_deg", cfg.sensor.fov_deg, gt=0, le=360)
-    distance = list(cfg.target.init_distance)
-    require(len(distance) == 2 and all(isinstance(d, (int, float)) for d in distance)
-            and 0 <= distance[0] <= distance[1],
-            "env.target.init_distance", distance, "[min, max] with 0 <= min <= max")
+    for name in ("target.init_distance", "belief.init_distance"):
+        distance = list(_get(cfg, name))
+        require(len(distance) == 2 and all(isinstance(d, (int, float)) for d in distance)
+                and 0 <= distance[0] <= distance[1], f"env.{name}", distance, "[min, max] with 0 <= min <= max")
+    check_choice("env.belief.model", cfg.belief.model, (None, *BELIEF_MODELS))
+    require(cfg.belief.filter != "kf" or belief_model_name(cfg) == "double_integrator", "env.belief.filter",
+            cfg.belief.filter, f"ukf with belief.model={belief_model_name(cfg)} (kf takes the linear "
+            "double_integrator model only)")
     for name in ("robot.linear_speeds", "robot.angular_speeds"):
         speeds = list(_get(cfg, name))
         require(len(speeds) > 0 and all(isinstance(v, (int, float)) for v in speeds), f"env.{name}", speeds,

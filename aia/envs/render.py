@@ -57,9 +57,9 @@ def render_frame(
     Args:
         grid_map: the world's map (its occupancy ``[ny, nx]``, row = y, origin at the lower-left corner).
         robot_pose: ``[3]`` (x, y, theta) in metres and radians.
-        target_state: ``[N, 4]`` true target states (x, y, vx, vy); only the positions are drawn.
-        belief_mean: ``[N, 4]`` belief means; only the positions are drawn.
-        belief_cov: ``[N, 4, 4]`` belief covariances; the 2x2 position block gives the 2-sigma ellipse.
+        target_state: ``[N, D]`` true target states, the position first; only the positions are drawn.
+        belief_mean: ``[N, d]`` belief means, the position first; only the positions are drawn.
+        belief_cov: ``[N, d, d]`` belief covariances; the 2x2 position block gives the 2-sigma ellipse.
         sensor_range: radius of the field-of-view sector in metres.
         fov_deg: opening angle of the field-of-view sector in degrees.
         size: side of the square image in pixels.
@@ -79,12 +79,12 @@ def render_frame(
     if pose.shape != (3,):
         raise ValueError(f"robot_pose must hold (x, y, theta) of one world, got shape {list(pose.shape)}")
     if targets.ndim != 2 or targets.shape[1] < 2:
-        raise ValueError(f"target_state must be [N, 4] for one world, got shape {list(targets.shape)}")
+        raise ValueError(f"target_state must be [N, D >= 2] for one world, got shape {list(targets.shape)}")
     num_targets = targets.shape[0]
     if means.shape[:1] != (num_targets,) or means.ndim != 2 or means.shape[1] < 2:
-        raise ValueError(f"belief_mean must be [N={num_targets}, 4], got shape {list(means.shape)}")
+        raise ValueError(f"belief_mean must be [N={num_targets}, d >= 2], got shape {list(means.shape)}")
     if covs.ndim != 3 or covs.shape[0] != num_targets or covs.shape[1] < 2 or covs.shape[1] != covs.shape[2]:
-        raise ValueError(f"belief_cov must be [N={num_targets}, 4, 4], got shape {list(covs.shape)}")
+        raise ValueError(f"belief_cov must be [N={num_targets}, d, d], got shape {list(covs.shape)}")
     seen = None
     if observed is not None:
         seen = _as_numpy(observed, "observed").astype(bool).reshape(-1)

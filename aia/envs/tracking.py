@@ -1,9 +1,11 @@
 """``TargetTrackingEnv``: B independent tracking worlds stepped as one tensor program.
 
-Each world holds a robot, ``N`` double-integrator targets and one Kalman-filter belief per target (SPEC
-1-5). A step moves the robot by one of the motion primitives, moves the targets, observes the visible ones
-with the range-bearing sensor, predicts every belief and updates the observed ones. The env emits the raw
-world state; the RL observation and the shaped reward come from the transforms in :mod:`aia.transforms`.
+Each world holds a robot, ``N`` targets (a :class:`~aia.envs.targets.TargetModel`: SPEC 3's double
+integrator by default) and one belief per target kept by a :class:`~aia.envs.filters.BeliefFilter` (SPEC
+5's Kalman filter by default; SPEC 1-5). A step moves the robot by one of the motion primitives, moves the
+targets, observes the visible ones with the range-bearing sensor, and hands the measurements to the filter,
+which predicts every belief and updates the observed ones. The env emits the raw world state; the RL
+observation and the shaped reward come from the transforms in :mod:`aia.transforms`.
 
 Randomness comes from :mod:`aia.envs.rng`: every world has its own reproducible stream keyed by the seed,
 its index and its episode count, so partial resets of some worlds never change what the others draw.
@@ -22,26 +24,18 @@ from torchrl.envs import EnvBase
 
 from aia.compiling import compiled
 from aia.envs import belief, rng
-from aia.envs.config import TrackingConfig
-from aia.envs.dynamics import double_integrator, motion_primitives, se2_step
+from aia.envs.belief_models import belief_model
+from aia.envs.config import TrackingConfig, belief_model_name
+from aia.envs.dynamics import motion_primitives, se2_step
+from aia.envs.filters import FILTERS, BeliefFilter, UnscentedKalmanFilter
 from aia.envs.maps import load_map
 from aia.envs.sensing import MapGeometry, map_geometry
+from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, SineTargets, TargetModel
 
-# Stream identifiers: draws for different purposes never share random bits.
+# Stream identifiers: draws for different purposes never share random bits (the filters' start at 11).
 _STEP_STREAM = 1
 _RESET_STREAM = 2
-
-STATE_KEYS = (
-    "robot_pose",
-    "robot_velocity",
-    "belief_mean",
-    "belief_cov",
-    "logdet_cov",
-    "observed",
-    "collision",
-    "obstacle_polar",
-    "target_state",
-)
+_HEADING_STREAM = 3
 
 
 class TargetTrackingEnv(EnvBase):
@@ -58,10 +52,12 @@ class TargetTrackingEnv(EnvBase):
             argument, which compiles the whole ``step_and_maybe_reset``.
 
     Emitted keys (all ``[B, ...]``): ``robot_pose`` (x, y, theta), ``robot_velocity`` (v, w of the last
-    commanded primitive), ``belief_mean`` ``[B, N, 4]``, ``belief_cov`` ``[B, N, 4, 4]``, ``logdet_cov``
-    ``[B, N]``, ``observed`` ``[B, N]``, ``collision``, ``obstacle_polar`` (distance, bearing of the closest
-    obstacle in view, ``(range, pi)`` when none), ``target_state`` ``[B, N, 4]`` (ground truth: for
-    evaluation and rendering only). ``reward`` is the paper's score increment ``-mean_i log det Sigma_i``;
+    commanded primitive), ``belief_mean`` ``[B, N, d]`` and ``belief_cov`` ``[B, N, d, d]`` (``d``: the
+    filter's model, 4 for the double integrator; the position first), ``belief_velocity`` ``[B, N, 2]``
+    (the mean's world-frame velocity, only when the filter's model has one), any state the filter keeps
+    beside them, ``logdet_cov`` ``[B, N]``, ``observed`` ``[B, N]``, ``collision``, ``obstacle_polar``
+    (distance, bearing of the closest obstacle in view, ``(range, pi)`` when none), ``target_state``
+    ``[B, N, D]`` (ground truth, the position first: for evaluation and rendering only). ``reward`` is the paper's score increment ``-mean_i log det Sigma_i``;
     :class:`~aia.transforms.InfoReward` replaces it with the shaped reward. Episodes end by truncation
     after ``config.max_steps`` steps.
     """
@@ -98,20 +94,15 @@ class TargetTrackingEnv(EnvBase):
             dtype=fdt,
         )
         self.primitives = motion_primitives(config.robot.linear_speeds, config.robot.angular_speeds, fdt).to(dev)
-        transition, target_noise = double_integrator(dt, config.target.q)
-        belief_q = config.target.q if config.belief.q is None else config.belief.q
-        _, belief_noise = double_integrator(dt, belief_q)
-        self.transition = transition.to(dev, fdt)
-        # W is positive definite for q > 0 (its 2x2 block has determinant q^2 dt^4 / 12).
-        chol = torch.linalg.cholesky(target_noise) if config.target.q > 0 else torch.zeros(4, 4, dtype=torch.float64)
-        self.target_noise_chol = chol.to(dev, fdt)
-        self.belief_noise = belief_noise.to(dev, fdt)
         self.meas_noise = torch.diag(
             torch.tensor([config.sensor.range_std**2, config.sensor.bearing_std**2], dtype=fdt, device=dev)
         )
         self.meas_std = torch.tensor([config.sensor.range_std, config.sensor.bearing_std], dtype=fdt, device=dev)
-        self.log_det_cap = math.log(config.belief.det_cap) if config.belief.det_cap is not None else math.inf
-        self._step_slots = rng.slot_keys(8 * self.num_targets, dev)  # the step's noise draws (rng.slot_keys)
+        self.targets = make_targets(config, self.geometry)
+        self.belief_filter = make_filter(config, self.meas_noise, self.geometry.size)
+        # The step's noise draws (rng.slot_keys): per target, the target model's normals, then 2 for the sensor.
+        self._step_normals = self.targets.normals + 2
+        self._step_slots = rng.slot_keys(2 * math.ceil(self._step_normals * self.num_targets / 2), dev)
         self._advance_fn = compiled(self._advance) if compile_step else self._advance
         self._make_specs()
         self._init_state()
@@ -123,6 +114,8 @@ class TargetTrackingEnv(EnvBase):
         width, height = self.map.width, self.map.height
         max_v = max(abs(v) for v in self.config.robot.linear_speeds)
         max_w = max(abs(w) for w in self.config.robot.angular_speeds)
+        filter_specs = self.belief_filter.specs(B, N, fdt, dev)
+        self._filter_keys = tuple(filter_specs)
         self.observation_spec = Composite(
             robot_pose=Bounded(
                 low=torch.tensor([0.0, 0.0, -math.pi], dtype=fdt).expand(B, 3),
@@ -134,8 +127,9 @@ class TargetTrackingEnv(EnvBase):
                 high=torch.tensor([max_v, max_w], dtype=fdt).expand(B, 2),
                 shape=(B, 2), dtype=fdt, device=dev,
             ),
-            belief_mean=Unbounded(shape=(B, N, 4), dtype=fdt, device=dev),
-            belief_cov=Unbounded(shape=(B, N, 4, 4), dtype=fdt, device=dev),
+            **filter_specs,
+            **({"belief_velocity": Unbounded(shape=(B, N, 2), dtype=fdt, device=dev)}
+               if self.belief_filter.model.has_velocity else {}),
             logdet_cov=Unbounded(shape=(B, N), dtype=fdt, device=dev),
             observed=Categorical(2, shape=(B, N), dtype=torch.bool, device=dev),
             collision=Categorical(2, shape=(B,), dtype=torch.bool, device=dev),
@@ -144,7 +138,7 @@ class TargetTrackingEnv(EnvBase):
                 high=torch.tensor([self.config.sensor.range, math.pi], dtype=fdt).expand(B, 2),
                 shape=(B, 2), dtype=fdt, device=dev,
             ),
-            target_state=Unbounded(shape=(B, N, 4), dtype=fdt, device=dev),
+            target_state=Unbounded(shape=(B, N, self.targets.dim), dtype=fdt, device=dev),
             shape=(B,),
             device=dev,
         )
@@ -234,7 +228,8 @@ class TargetTrackingEnv(EnvBase):
         """A fresh episode for every world (the caller keeps the worlds that are not reset)."""
         cfg, geom = self.config, self.geometry
         B, N, M, dev, fdt = self.batch_size[0], self.num_targets, cfg.target.init_candidates, self.device, self.dtype
-        u = rng.uniform(self._episode_key, torch.zeros_like(self._step_count), _RESET_STREAM, 4 + N * (4 * M + 3), fdt)
+        counter = torch.zeros_like(self._step_count)
+        u = rng.uniform(self._episode_key, counter, _RESET_STREAM, 4 + N * (4 * M + 3), fdt)
         u_robot, u_heading, u_target, u_belief, u_fallback = torch.split(u, (3, 1, 2 * N * M, 2 * N * M, 3 * N), -1)
 
         if self.map.robot_start is not None:
@@ -243,39 +238,65 @@ class TargetTrackingEnv(EnvBase):
             robot_xy = geom.sample_free(u_robot)
         heading = (2 * u_heading - 1) * math.pi
         pose = torch.cat((robot_xy, heading), -1)
+        target_xy, belief_xy = self._placements(robot_xy, u_target.reshape(B, N, M, 2), u_belief.reshape(B, N, M, 2),
+                                                u_fallback.reshape(B, N, 3))
+        # Headings, for the models that have one: each point faces away from what it was placed around, as
+        # ttenv's placement turns them (drawn from their own stream: the placements above stay as they were).
+        anchor_of_target = belief_xy if cfg.belief.init_anchor == "robot" else robot_xy[:, None, :]
+        anchor_of_belief = robot_xy[:, None, :] if cfg.belief.init_anchor == "robot" else target_xy
+        target_heading, belief_heading = _direction(target_xy - anchor_of_target), _direction(belief_xy - anchor_of_belief)
 
-        # Targets: distance uniform in [lo, hi] at a uniform angle, first collision-free candidate.
-        lo, hi = cfg.target.init_distance
-        u_target = u_target.reshape(B, N, M, 2)
-        offset = _polar_offset(lo + (hi - lo) * u_target[..., 0], u_target[..., 1])
-        fallback = geom.sample_free(u_fallback.reshape(B, N, 3))
-        target_xy = _first_free(robot_xy[:, None, None, :] + offset, geom, fallback)
-
-        # Belief means: offset from the true target in a disk or a box, first collision-free candidate.
-        u_belief = u_belief.reshape(B, N, M, 2)
-        size = cfg.belief.init_offset
-        if cfg.belief.init_offset_shape == "disk":
-            offset = _polar_offset(size * u_belief[..., 0], u_belief[..., 1])
-        else:
-            offset = (2 * u_belief - 1) * size
-        belief_xy = _first_free(target_xy[:, :, None, :] + offset, geom, target_xy)
-
-        zeros2 = torch.zeros(B, N, 2, dtype=fdt, device=dev)
-        cov = cfg.belief.init_cov * torch.eye(4, dtype=fdt, device=dev).expand(B, N, 4, 4)
-        belief_mean = self._clip_belief(torch.cat((belief_xy, zeros2), -1))
+        model = self.belief_filter.model
+        beliefs = self.belief_filter.initial(model.initial_mean(belief_xy, belief_heading), cfg.belief.init_cov,
+                                             self._episode_key, counter)
         return TensorDict(
             robot_pose=pose,
             robot_velocity=torch.zeros(B, 2, dtype=fdt, device=dev),
-            belief_mean=belief_mean,
-            belief_cov=cov.clone(),
-            logdet_cov=belief.logdet(cov),
+            **beliefs,
+            **self._belief_velocity(beliefs["belief_mean"]),
+            logdet_cov=belief.logdet(beliefs["belief_cov"]),
             observed=torch.zeros(B, N, dtype=torch.bool, device=dev),
             collision=torch.zeros(B, dtype=torch.bool, device=dev),
             obstacle_polar=geom.closest_obstacle(pose),
-            target_state=torch.cat((target_xy, zeros2), -1),
+            target_state=self.targets.initial(target_xy, target_heading),
             batch_size=self.batch_size,
             device=dev,
         )
+
+    def _placements(self, robot_xy: Tensor, u_first: Tensor, u_second: Tensor, u_fallback: Tensor
+                    ) -> tuple[Tensor, Tensor]:
+        """``(target_xy, belief_xy)`` ``[B, N, 2]``, each the first collision-free of ``M`` candidates.
+
+        ``belief.init_anchor="target"``: the target at ``target.init_distance`` from the robot at a uniform
+        angle, the belief mean offset from it in a disk or a box. ``"robot"`` (ttenv): the belief mean at
+        ``belief.init_distance`` from the robot, the target within ``belief.init_offset`` of the mean and
+        ``belief.init_offset_angle`` of the direction from the robot to the mean.
+        """
+        cfg, geom = self.config, self.geometry
+        fallback = geom.sample_free(u_fallback)
+        size = cfg.belief.init_offset
+        if cfg.belief.init_anchor == "robot":
+            lo, hi = cfg.belief.init_distance
+            offset = _polar_offset(lo + (hi - lo) * u_first[..., 0], u_first[..., 1])
+            belief_xy = _first_free(robot_xy[:, None, None, :] + offset, geom, fallback)
+            away = _direction(belief_xy - robot_xy[:, None, :]).unsqueeze(-1)
+            angle = away + (2 * u_second[..., 1] - 1) * cfg.belief.init_offset_angle
+            distance = size * u_second[..., 0]
+            offset = torch.stack((distance * torch.cos(angle), distance * torch.sin(angle)), -1)
+            return _first_free(belief_xy[:, :, None, :] + offset, geom, belief_xy), belief_xy
+        lo, hi = cfg.target.init_distance
+        offset = _polar_offset(lo + (hi - lo) * u_first[..., 0], u_first[..., 1])
+        target_xy = _first_free(robot_xy[:, None, None, :] + offset, geom, fallback)
+        if cfg.belief.init_offset_shape == "disk":
+            offset = _polar_offset(size * u_second[..., 0], u_second[..., 1])
+        else:
+            offset = (2 * u_second - 1) * size
+        return target_xy, _first_free(target_xy[:, :, None, :] + offset, geom, target_xy)
+
+    def _belief_velocity(self, mean: Tensor) -> dict[str, Tensor]:
+        """``{"belief_velocity": [B, N, 2]}`` when the filter's model has a velocity, else nothing."""
+        model = self.belief_filter.model
+        return {"belief_velocity": model.velocity(mean)} if model.has_velocity else {}
 
     # ------------------------------------------------------------------- step
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -284,29 +305,26 @@ class TargetTrackingEnv(EnvBase):
             _check_actions(action, self.primitives.shape[0])
         self._step_count += 1
         self._steps_bound += 1
-        state = self.state
-        *fields, reward, truncated = self._advance_fn(
-            state["robot_pose"], state["target_state"], state["belief_mean"], state["belief_cov"],
-            action, self._episode_key, self._step_count,
-        )
-        fields = dict(zip(STATE_KEYS, fields, strict=True))
+        fields, reward, truncated = self._advance_fn(dict(self.state.items()), action, self._episode_key,
+                                                     self._step_count)
         # The kernel's outputs have the right batch size and device: skip TensorDict's per-entry checks
         # (a quarter of the TorchRL-side cost of a step at B = 1).
         self.state = TensorDict._new_unsafe(fields, batch_size=self.batch_size, device=self.device)
-        fields.update(reward=reward, done=truncated, terminated=torch.zeros_like(truncated), truncated=truncated)
+        fields = dict(fields, reward=reward, done=truncated, terminated=torch.zeros_like(truncated),
+                      truncated=truncated)
         return TensorDict._new_unsafe(fields, batch_size=self.batch_size, device=self.device)
 
-    def _advance(
-        self, pose: Tensor, targets: Tensor, mean: Tensor, cov: Tensor, action: Tensor, key: Tensor, step: Tensor
-    ) -> tuple[Tensor, ...]:
+    def _advance(self, state: dict[str, Tensor], action: Tensor, key: Tensor, step: Tensor
+                 ) -> tuple[dict[str, Tensor], Tensor, Tensor]:
         """One step of every world as a pure function of tensors (compiled when ``compile_step=True``).
 
-        Returns the new state in the order of :data:`STATE_KEYS`, then the raw reward (the score increment
+        Returns the new state (every key of the observation spec), the raw reward (the score increment
         ``-mean_i log det Sigma_i``, ``[B, 1]``) and the truncation flags (``[B, 1]``).
         """
         cfg, geom = self.config, self.geometry
-        N = self.num_targets
-        noise = rng.normal(key, step, _STEP_STREAM, 8 * N, self.dtype, self._step_slots).unflatten(-1, (N, 8))
+        N, pose, targets = self.num_targets, state["robot_pose"], state["target_state"]
+        noise = rng.normal(key, step, _STEP_STREAM, self._step_normals * N, self.dtype, self._step_slots)
+        noise = noise.unflatten(-1, (N, self._step_normals))
 
         # Robot: a colliding move (or, in the 2019 rule, one too close to the targets) keeps the position;
         # the heading turns either way.
@@ -319,51 +337,47 @@ class TargetTrackingEnv(EnvBase):
             blocked = blocked | (spread < cfg.robot.target_margin**2)
         pose = torch.cat((torch.where(blocked[:, None], pose[:, :2], proposal[:, :2]), proposal[:, 2:]), -1)
 
-        targets = self._move_targets(targets, noise[..., :4], noise[..., 4:6])
+        targets = self.targets.step(targets, noise[..., :-2])
 
         # Sensor: range, field of view and line of sight to the true targets.
         observed, polar = geom.in_view(pose, targets[..., :2])
-        measurement = polar + noise[..., 6:8] * self.meas_std
+        measurement = polar + noise[..., -2:] * self.meas_std
 
-        # Belief: predict all, update the observed ones (SPEC 5 order).
-        prior_cov = cov
-        mean, cov = belief.predict(mean, cov, self.transition, self.belief_noise)
-        cov = belief.cap_det(prior_cov, cov, self.log_det_cap)
-        mean = self._clip_belief(mean)
-        mean_post, cov_post = belief.update(mean, cov, measurement, pose[:, None, :], self.meas_noise)
-        mean = torch.where(observed[..., None], self._clip_belief(mean_post), mean)
-        cov = torch.where(observed[..., None, None], cov_post, cov)
-        logdet = belief.logdet(cov)
-        obstacle = geom.closest_obstacle(pose)
+        # Belief: the filter predicts all and updates the observed ones (SPEC 5 order).
+        beliefs = self.belief_filter.step(
+            {k: state[k] for k in self._filter_keys}, measurement, observed, pose, key, step)
+        logdet = belief.logdet(beliefs["belief_cov"])
+        fields = dict(robot_pose=pose, robot_velocity=velocity, **beliefs,
+                      **self._belief_velocity(beliefs["belief_mean"]), logdet_cov=logdet, observed=observed,
+                      collision=collision, obstacle_polar=geom.closest_obstacle(pose), target_state=targets)
         reward = -logdet.mean(-1, keepdim=True)
         truncated = (step >= cfg.max_steps).unsqueeze(-1)
-        return pose, velocity, mean, cov, logdet, observed, collision, obstacle, targets, reward, truncated
+        return fields, reward, truncated
 
-    def _move_targets(self, targets: Tensor, process: Tensor, reflect: Tensor) -> Tensor:
-        """Double-integrator step; a target whose next position collides keeps its position and reflects
-        its velocity: ``v <- gain * v' + N(0, std^2)`` (2019 rule)."""
-        cfg = self.config.target
-        moved = belief.bmm(targets.unsqueeze(-2), self.transition.mT).squeeze(-2)
-        moved = moved + belief.bmm(process.unsqueeze(-2), self.target_noise_chol.mT).squeeze(-2)
-        bounced = self.geometry.in_collision(moved[..., :2])
-        bounce_velocity = cfg.reflect_gain * moved[..., 2:] + cfg.reflect_noise_std * reflect
-        reflected = torch.cat((targets[..., :2], bounce_velocity), -1)
-        moved = torch.where(bounced[..., None], reflected, moved)
-        if cfg.speed_limit is not None:
-            speed = torch.linalg.vector_norm(moved[..., 2:], dim=-1, keepdim=True)
-            scale = torch.clamp(cfg.speed_limit / speed.clamp_min(1e-12), max=1.0)
-            moved = torch.cat((moved[..., :2], moved[..., 2:] * scale), -1)
-        return moved
 
-    def _clip_belief(self, mean: Tensor) -> Tensor:
-        """2019 code: clip belief means to the map bounds and their velocities to +-speed_clip."""
-        cfg = self.config.belief
-        if cfg.clip_to_map:
-            position = torch.minimum(mean[..., :2].clamp_min(0.0), self.geometry.size)
-            mean = torch.cat((position, mean[..., 2:]), -1)
-        if cfg.speed_clip is not None:
-            mean = torch.cat((mean[..., :2], mean[..., 2:].clamp(-cfg.speed_clip, cfg.speed_clip)), -1)
-        return mean
+def make_targets(config: TrackingConfig, geometry: MapGeometry) -> TargetModel:
+    """The true targets' model of a setting (``env.target.model``)."""
+    t, dt = config.target, config.dt
+    if t.model == "double_integrator":
+        return DoubleIntegratorTargets(geometry, dt, t.q, t.reflect_gain, t.reflect_noise_std, t.speed_limit)
+    v_max = math.inf if t.speed_limit is None else t.speed_limit
+    w_max = math.inf if t.angular_speed_limit is None else t.angular_speed_limit
+    if t.model == "se2_sine":
+        return SineTargets(geometry, dt, t.sine_step, t.sine_frequency, t.sine_amplitude, v_max, w_max,
+                           t.turn_on_collision)
+    return ConstantSpeedTargets(geometry, dt, t.q, v_max, w_max)
+
+
+def make_filter(config: TrackingConfig, meas_noise: Tensor, map_size: Tensor) -> BeliefFilter:
+    """The belief filter of a setting (``env.belief.filter`` over ``env.belief.model``)."""
+    b = config.belief
+    q = config.target.q if b.q is None else b.q
+    model = belief_model(belief_model_name(config), config.dt, q, b.control, meas_noise.device, meas_noise.dtype)
+    options = dict(log_det_cap=math.log(b.det_cap) if b.det_cap is not None else math.inf, map_size=map_size,
+                   clip_to_map=b.clip_to_map, speed_clip=b.speed_clip)
+    if FILTERS[b.filter] is UnscentedKalmanFilter:
+        options["kappa"] = b.ukf_kappa
+    return FILTERS[b.filter](model, meas_noise, **options)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -390,6 +404,11 @@ def _check_actions(action: Tensor, num_actions: int) -> None:
 def _polar_offset(distance: Tensor, u_angle: Tensor) -> Tensor:
     angle = (2 * u_angle - 1) * math.pi
     return torch.stack((distance * torch.cos(angle), distance * torch.sin(angle)), -1)
+
+
+def _direction(delta: Tensor) -> Tensor:
+    """The angle of each vector ``[..., 2]``."""
+    return torch.atan2(delta[..., 1], delta[..., 0])
 
 
 def _first_free(candidates: Tensor, geometry: MapGeometry, fallback: Tensor) -> Tensor:

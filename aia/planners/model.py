@@ -9,7 +9,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from aia.checks import require
 from aia.envs import belief
+from aia.envs.filters import KalmanFilter
 from aia.envs.sensing import MapGeometry
 from aia.envs.tracking import TargetTrackingEnv
 
@@ -27,10 +29,14 @@ class TrackingModel(NamedTuple):
 
     @classmethod
     def from_env(cls, env: TargetTrackingEnv) -> TrackingModel:
-        """The model of ``env`` (its very tensors, cast to float64)."""
-        cfg, f64 = env.config, torch.float64
-        return cls(env.primitives.to(f64), cfg.dt, env.transition.to(f64), env.belief_noise.to(f64),
-                   env.meas_noise.to(f64), env.log_det_cap, env.geometry)
+        """The model of ``env`` (its very tensors, cast to float64). ARVI plans with the Kalman filter's
+        linear-Gaussian model: a setting whose beliefs another filter keeps is refused in one line."""
+        cfg, f64, kf = env.config, torch.float64, env.belief_filter
+        require(isinstance(kf, KalmanFilter), "env.belief.filter", cfg.belief.filter,
+                "kf (ARVI plans with the Kalman filter's linear-Gaussian model; use a learned or heuristic "
+                "policy on this setting)")
+        return cls(env.primitives.to(f64), cfg.dt, kf.transition.to(f64), kf.model.noise.to(f64),
+                   env.meas_noise.to(f64), kf.log_det_cap, env.geometry)
 
 
 def visible_targets(model: TrackingModel, pose: Tensor, positions: Tensor, min_range: float = 0.0) -> Tensor:

@@ -47,17 +47,22 @@ class BeliefPursuitPolicy:
         self.standoff = standoff
 
     def __call__(self, tensordict: TensorDictBase) -> TensorDictBase:
+        mean = tensordict.get("belief_mean")
+        velocity = tensordict.get("belief_velocity", None)
         return tensordict.set(
             "action",
-            self.choose(tensordict.get("robot_pose"), tensordict.get("belief_mean"), tensordict.get("logdet_cov")),
+            self.choose(tensordict.get("robot_pose"), mean[..., :2],
+                        torch.zeros_like(mean[..., :2]) if velocity is None else velocity,
+                        tensordict.get("logdet_cov")),
         )
 
-    def choose(self, pose: Tensor, mean: Tensor, logdet: Tensor) -> Tensor:
-        """``[B]`` action indices from ``pose [B, 3]``, ``mean [B, N, 4]`` and ``logdet [B, N]``."""
+    def choose(self, pose: Tensor, position: Tensor, velocity: Tensor, logdet: Tensor) -> Tensor:
+        """``[B]`` action indices from ``pose [B, 3]``, the belief means' ``position [B, N, 2]`` and
+        ``velocity [B, N, 2]`` (zero where the belief has none) and ``logdet [B, N]``."""
         worst = logdet.argmax(-1)
-        target = mean[torch.arange(mean.shape[0], device=mean.device), worst]  # [B, 4]
+        rows = torch.arange(position.shape[0], device=position.device)
         # Aim at where the belief will be after the step.
-        goal = target[:, :2] + self.dt * target[:, 2:]
+        goal = position[rows, worst] + self.dt * velocity[rows, worst]
         nxt = se2_step(pose[:, None, :], self.primitives[None], self.dt)  # [B, A, 3]
         delta = goal[:, None, :] - nxt[..., :2]
         distance = torch.linalg.vector_norm(delta, dim=-1)

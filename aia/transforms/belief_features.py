@@ -1,4 +1,8 @@
-"""``BeliefFeatures``: the paper's RL state (SPEC 6) computed from the env's raw belief keys."""
+"""``BeliefFeatures``: the paper's RL state (SPEC 6) computed from the env's raw belief keys.
+
+Its layout follows the belief the env keeps, read from the env's specs: ``6N + 2`` features when the beliefs
+carry a velocity (the env emits ``belief_velocity``), ``4N + 2`` without (ttenv v2's layout: no rates).
+"""
 
 from __future__ import annotations
 
@@ -14,6 +18,7 @@ from aia.compiling import compiled
 from aia.envs.dynamics import wrap_angle
 
 _IN_KEYS = ("robot_pose", "robot_velocity", "belief_mean", "logdet_cov", "observed", "obstacle_polar")
+_VELOCITY_KEY = "belief_velocity"
 _RELATIVE_VELOCITY = ("exact", "2019")
 
 
@@ -21,8 +26,9 @@ class BeliefFeatures(Transform):
     """Write the ``6N + 2`` feature vector of SPEC 6 under ``out_key`` (default ``"observation"``).
 
     Per target, in the robot frame: ``[r, alpha, rdot, alphadot, log det Sigma, observed]`` of the belief
-    mean (the rates relative to the robot moving at its last commanded (v, w)); then ``[o_r, o_alpha]`` of
-    the closest obstacle in view. ``relative_velocity="2019"`` reproduces the authors' 2019 formula, whose
+    mean (the rates relative to the robot moving at its last commanded (v, w), from ``belief_velocity``);
+    then ``[o_r, o_alpha]`` of the closest obstacle in view. Where the env emits no ``belief_velocity`` the
+    rates are left out: ``[r, alpha, log det Sigma, observed]`` per target, ``4N + 2`` in all. ``relative_velocity="2019"`` reproduces the authors' 2019 formula, whose
     angular rate is taken about the map origin and whose robot velocity carries an extra ``|p| w`` term.
     """
 
@@ -35,7 +41,9 @@ class BeliefFeatures(Transform):
 
     def _call(self, tensordict: TensorDictBase) -> TensorDictBase:
         pose, velocity, mean, logdet, observed, obstacle = (tensordict.get(k) for k in _IN_KEYS)
-        features = self._features(pose, velocity, mean, logdet, observed, obstacle, self.relative_velocity)
+        target_velocity = tensordict.get(_VELOCITY_KEY, None)
+        features = self._features(pose, velocity, mean[..., :2], target_velocity, logdet, observed, obstacle,
+                                  self.relative_velocity)
         tensordict.set(self.out_keys[0], features)
         return tensordict
 
@@ -49,11 +57,12 @@ class BeliefFeatures(Transform):
         batch = mean_spec.shape[:-2]
         sensor_range = float(obstacle_spec.space.high.reshape(-1, 2)[0, 0])
         inf = math.inf
-        per_target_low = [0.0, -math.pi, -inf, -inf, -inf, 0.0]
-        per_target_high = [inf, math.pi, inf, inf, inf, 1.0]
+        rates = _VELOCITY_KEY in observation_spec.keys()
+        per_target_low = [0.0, -math.pi, *([-inf, -inf] if rates else []), -inf, 0.0]
+        per_target_high = [inf, math.pi, *([inf, inf] if rates else []), inf, 1.0]
         low = torch.tensor(per_target_low * num_targets + [0.0, -math.pi], dtype=mean_spec.dtype)
         high = torch.tensor(per_target_high * num_targets + [sensor_range, math.pi], dtype=mean_spec.dtype)
-        size = 6 * num_targets + 2
+        size = len(per_target_low) * num_targets + 2
         observation_spec[self.out_keys[0]] = Bounded(
             low=low.expand(*batch, size), high=high.expand(*batch, size), shape=(*batch, size),
             dtype=mean_spec.dtype, device=mean_spec.device,
@@ -64,24 +73,29 @@ class BeliefFeatures(Transform):
 def belief_features(
     pose: Tensor,
     velocity: Tensor,
-    mean: Tensor,
+    position: Tensor,
+    target_velocity: Tensor | None,
     logdet: Tensor,
     observed: Tensor,
     obstacle: Tensor,
     relative_velocity: str = "exact",
 ) -> Tensor:
-    """``[..., 6N + 2]`` features from ``pose [..., 3]``, ``velocity [..., 2]`` (v, w), ``mean [..., N, 4]``,
-    ``logdet [..., N]``, ``observed [..., N]`` and ``obstacle [..., 2]`` (SPEC 6)."""
+    """``[..., 6N + 2]`` features from ``pose [..., 3]``, ``velocity [..., 2]`` (v, w), the belief means'
+    ``position [..., N, 2]`` and ``target_velocity [..., N, 2]``, ``logdet [..., N]``, ``observed [..., N]``
+    and ``obstacle [..., 2]`` (SPEC 6); ``[..., 4N + 2]`` without the rates when ``target_velocity`` is None."""
     xy, theta = pose[..., None, :2], pose[..., None, 2]
-    v, w = velocity[..., None, 0], velocity[..., None, 1]
-    delta = mean[..., :2] - xy
+    delta = position - xy
     r2 = delta.square().sum(-1)
     r = torch.sqrt(r2)
     alpha = wrap_angle(torch.atan2(delta[..., 1], delta[..., 0]) - theta)
+    if target_velocity is None:
+        per_target = torch.stack((r, alpha, logdet, observed.to(r.dtype)), -1)
+        return torch.cat((per_target.flatten(-2), obstacle), -1)
+    v, w = velocity[..., None, 0], velocity[..., None, 1]
     heading = torch.stack((torch.cos(theta), torch.sin(theta)), -1)
     if relative_velocity == "exact":
         robot_velocity = v[..., None] * heading
-        relative = mean[..., 2:] - robot_velocity
+        relative = target_velocity - robot_velocity
         cross = delta[..., 0] * relative[..., 1] - delta[..., 1] * relative[..., 0]
         alpha_dot = torch.where(r2 > 0, cross / r2.clamp_min(1e-12), 0.0) - w
     else:
@@ -89,9 +103,9 @@ def belief_features(
         rho = torch.linalg.vector_norm(xy, dim=-1)
         normal = torch.stack((-heading[..., 1], heading[..., 0]), -1)
         robot_velocity = v[..., None] * heading + (rho * w)[..., None] * normal
-        relative = mean[..., 2:] - robot_velocity
-        origin_r2 = mean[..., :2].square().sum(-1)
-        cross = mean[..., 0] * mean[..., 3] - mean[..., 2] * mean[..., 1]
+        relative = target_velocity - robot_velocity
+        origin_r2 = position.square().sum(-1)
+        cross = position[..., 0] * target_velocity[..., 1] - target_velocity[..., 0] * position[..., 1]
         alpha_dot = torch.where(origin_r2 > 0, cross / origin_r2.clamp_min(1e-12), 0.0) - w
     r_dot = torch.where(r > 0, (delta * relative).sum(-1) / r.clamp_min(1e-12), 0.0)
     if relative_velocity == "2019":

@@ -21,6 +21,11 @@ CASES = [
     ("empty1", ["belief.init_offset_shape=ring"], "env.belief.init_offset_shape='ring'", "disk"),
     ("empty1", ["sensr.range=3"], "overrides=['sensr.range=3']", "sensr"),
     ("empty1", ["map=/nonexistent/room.yaml"], "env.map='/nonexistent/room.yaml'", "does not exist"),
+    ("empty1", ["belief.filter=pf2"], "env.belief.filter='pf2'", "'kf', 'ukf'"),
+    ("empty1", ["target.model=teleport"], "env.target.model='teleport'", "'se2_sine'"),
+    ("empty1", ["belief.model=bicycle"], "env.belief.model='bicycle'", "'se2_velocity'"),
+    ("ttenv_v2", ["belief.filter=kf"], "env.belief.filter='kf'", "ukf with belief.model=se2"),
+    ("empty1", ["belief.ukf_kappa=0"], "env.belief.ukf_kappa=0", "> 0"),
 ]
 
 

@@ -326,3 +326,46 @@ def test_user_map_from_file(tmp_path):
     td = env.rollout(20)
     assert torch.equal(td["robot_pose"][:, 0, :2], torch.tensor([3.0, 5.0]).expand(8, 2))
     assert (td["next", "robot_pose"][..., 0] <= 19.5).all()
+
+
+# ------------------------------------------------------- other models
+@pytest.mark.parametrize("setting, size, dim", [("ttenv_v2", 4, 3), ("ttenv_v3", 6, 5)])
+def test_ttenv_presets_specs_and_layout(setting, size, dim):
+    env = make_env(setting, batch_size=3, seed=0, overrides=["num_targets=2"])
+    check_env_specs(env, seed=0)
+    td = env.rollout(4)
+    assert td["next", "observation"].shape == (3, 4, 2 * size + 2)
+    assert td["next", "belief_cov"].shape == (3, 4, 2, dim, dim)
+    assert ("next", "belief_velocity") in td.keys(True) if size == 6 else ("next", "belief_velocity") not in td.keys(True)
+    observation = td["next", "observation"]
+    assert torch.equal(observation[..., size - 2:2 * size:size], td["next", "logdet_cov"])
+
+
+@pytest.mark.parametrize("overrides", [["target.model=se2_sine", "belief.filter=ukf"],
+                                       ["target.model=se2_constant", "belief.filter=ukf", "belief.model=double_integrator"]])
+def test_other_models_keep_a_world_independent_of_the_batch(overrides):
+    def rollout(batch_size):
+        env = make_env("small2", batch_size=batch_size, seed=4, overrides=overrides)
+        actions = torch.randint(0, 12, (20, 5), generator=torch.Generator().manual_seed(0))[:, :batch_size]
+        td, out = env.reset(), []
+        for t in range(20):
+            td = env.step(td.set("action", actions[t]))["next"]
+            out.append(torch.cat((td["observation"], td["target_state"].flatten(-2)), -1))
+        return torch.stack(out)
+
+    assert torch.equal(rollout(2), rollout(5)[:, :2])
+
+
+def test_robot_anchored_start_places_beliefs_then_targets():
+    env = make_env("ttenv_v2", batch_size=256, seed=1, transforms=False)
+    td = env.reset()
+    robot = td["robot_pose"][:, None, :2]
+    belief_xy, target_xy = td["belief_mean"][..., :2], td["target_state"][..., :2]
+    distance = torch.linalg.vector_norm(belief_xy - robot, dim=-1)
+    assert distance.min() >= 5.0 - 1e-4 and distance.max() <= 20.0 + 1e-4
+    away = belief_xy - robot
+    offset = target_xy - belief_xy
+    cosine = (away * offset).sum(-1) / (away.norm(dim=-1) * offset.norm(dim=-1)).clamp_min(1e-9)
+    assert (cosine >= -1e-4).all() and offset.norm(dim=-1).max() <= 20.0 + 1e-4   # within +-pi/2 of "away"
+    # a belief's heading points away from the robot, a target's away from its belief
+    assert torch.allclose(td["belief_mean"][..., 2], torch.atan2(away[..., 1], away[..., 0]), atol=1e-5)

@@ -10,6 +10,7 @@ from torchrl.envs import StepCounter
 
 from aia.envs import belief, make_env
 from aia.envs.dynamics import se2_step
+from aia.errors import ConfigError
 from aia.evaluation import episode_scores, run_episodes
 from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy, model, pruning, search, to_arvi_config
 from aia.policies import RandomPolicy
@@ -37,7 +38,8 @@ def _exhaustive(env, pose, mean, cov, horizon):
     count = sequences.shape[0]
     pose = pose.to(f64).expand(count, 3)
     mean, cov = mean.to(f64)[0], cov.to(f64).expand(count, *cov.shape[1:])
-    transition, noise, meas_noise = env.transition.to(f64), env.belief_noise.to(f64), env.meas_noise.to(f64)
+    transition, noise = env.belief_filter.transition.to(f64), env.belief_filter.model.noise.to(f64)
+    meas_noise = env.meas_noise.to(f64)
     half_fov = math.radians(env.config.sensor.fov_deg) / 2
     total = torch.zeros(count, dtype=f64)
     for t in range(horizon):
@@ -147,7 +149,7 @@ def test_covariance_steps_equal_the_env_filter():
     for _ in range(25):
         cov, mean = td["belief_cov"], td["belief_mean"]
         td = env.step(random(td))["next"]
-        predicted_xy = (mean @ env.transition.T)[..., :2]
+        predicted_xy = (mean @ env.belief_filter.transition.T)[..., :2]
         predicted, logdet = model.predict_cov(tracking, cov, belief.logdet(cov))
         step, step_logdet = model.update_visible(tracking, predicted, logdet, td["robot_pose"], predicted_xy,
                                                  td["observed"])
@@ -352,3 +354,8 @@ def test_bad_parameters_are_named():
     with pytest.raises(ValueError, match="invalid planner config.*horizn"):
         to_arvi_config({"horizn": 3})
     assert to_arvi_config({"horizon": 6, "eps": "inf"}) == ARVIConfig(horizon=6)
+
+
+def test_arvi_refuses_a_setting_without_a_kalman_filter_in_one_line():
+    with pytest.raises(ConfigError, match=r"env.belief.filter='ukf': expected kf \(ARVI plans"):
+        model.TrackingModel.from_env(make_env("ttenv_v2", transforms=False))

@@ -24,7 +24,7 @@ def test_pursuit_turns_toward_the_belief_and_ignores_the_truth():
     policy = BeliefPursuitPolicy(env.base_env)
     pose = torch.tensor([[50.0, 50.0, 0.0], [50.0, 50.0, 0.0]])
     mean = torch.tensor([[[50.0, 60.0, 0.0, 0.0]], [[55.0, 50.0, 0.0, 0.0]]])  # to the left; straight ahead
-    action = policy.choose(pose, mean, torch.zeros(2, 1))
+    action = policy.choose(pose, mean[..., :2], mean[..., 2:], torch.zeros(2, 1))
     assert action[0].item() in (0, 3, 6, 9)  # a left turn (w = +pi/2)
     assert action[1].item() in (1, 4, 7, 10)  # straight on, already at the standoff distance
     td = env.reset().exclude("target_state")

@@ -13,10 +13,12 @@ from aia.transforms import BeliefFeatures, belief_features
 
 
 def _features(pose, velocity, mean, form, logdet=(7.5,), observed=(True,), obstacle=(2.0, -0.3)):
+    mean = torch.tensor([mean], dtype=torch.float64)
     return belief_features(
         torch.tensor([pose], dtype=torch.float64),
         torch.tensor([velocity], dtype=torch.float64),
-        torch.tensor([mean], dtype=torch.float64),
+        mean[..., :2],
+        mean[..., 2:],
         torch.tensor([logdet], dtype=torch.float64),
         torch.tensor([observed]),
         torch.tensor([obstacle], dtype=torch.float64),

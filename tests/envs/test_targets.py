@@ -1,0 +1,70 @@
+"""The true targets' models: free space, speed limits, headings, and ttenv's policies by hand."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from aia.envs import make_env
+from aia.envs.dynamics import se2_step
+from aia.envs.sensing import map_geometry
+from aia.envs.targets import ConstantSpeedTargets, SineTargets
+
+
+def _geometry(name="obstacles4"):
+    return map_geometry(name, 0.5, 10.0, math.radians(120), 0.05, 4, "cpu", torch.float64)
+
+
+@pytest.mark.parametrize("setting", ["ttenv_v2", "ttenv_v3"])
+def test_se2_targets_stay_free_within_limits_and_wrapped(setting):
+    env = make_env(setting, batch_size=64, seed=2, transforms=False, overrides=["map=obstacles4"])
+    td = env.rollout(100, break_when_any_done=False)
+    states = torch.cat((td["target_state"][:, :1], td["next", "target_state"]), 1)
+    assert not env.geometry.in_collision(states[..., :2]).any()
+    heading = states[..., 2]
+    assert heading.abs().max() <= math.pi
+    cfg = env.config.target
+    assert states[..., 3].abs().max() <= cfg.speed_limit + 1e-6
+    assert states[..., 4].abs().max() <= cfg.angular_speed_limit + 1e-6
+    # a target moves by the unicycle at its recorded control, except where it was blocked
+    before, after = states[:, :-1], states[:, 1:]
+    moved = se2_step(before[..., :3], after[..., 3:5], env.config.dt)
+    free = (moved - after[..., :3]).abs().amax(-1) < 1e-4
+    assert free.float().mean() > 0.9
+
+
+def test_sine_policy_follows_its_curve_by_hand():
+    dt = 0.5
+    model = SineTargets(_geometry("empty"), dt, step_length=0.1, frequency=0.5, amplitude=5.0, speed_limit=2.0,
+                        angular_speed_limit=math.pi, turn=math.pi / 4)
+    start = torch.tensor([[[50.0, 50.0, 0.0]]], dtype=torch.float64)
+    state = model.initial(start[..., :2], start[..., 2])
+    state = model.step(state, torch.zeros(1, 1, 1, dtype=torch.float64))
+    # the frame is the start pose: the next curve point is (0.1, 5 sin(0.05)), its heading atan(2.5 cos(0.05))
+    goal = torch.tensor([50.1, 50.0 + 5.0 * math.sin(0.05)], dtype=torch.float64)
+    v = float(torch.linalg.vector_norm(goal - start[0, 0, :2])) / dt
+    w = math.atan(2.5 * math.cos(0.05)) / dt
+    w = max(-math.pi, min(math.pi, w))
+    assert torch.allclose(state[0, 0, 3:5], torch.tensor([v, w], dtype=torch.float64))
+    expected = se2_step(start[0, 0], torch.tensor([v, w], dtype=torch.float64), dt)
+    assert torch.allclose(state[0, 0, :3], expected)
+    assert torch.equal(state[0, 0, 5:], start[0, 0])  # the curve's frame is kept while the target is free
+
+
+def test_constant_speed_target_mirrors_its_turn_at_an_obstacle():
+    geometry = _geometry("empty_small")
+    model = ConstantSpeedTargets(geometry, 0.5, q=0.0, speed_limit=2.0, angular_speed_limit=math.pi / 5)
+    # 0.5 m from the east wall's margin, heading north-east, turning left: the move collides, the mirrored
+    # turn (to the right) collides as well, so the target stays and turns around
+    state = torch.tensor([[[26.0, 13.5, math.pi / 4, 2.0, 0.5]]], dtype=torch.float64)
+    nxt = model.step(state, torch.zeros(1, 1, 2, dtype=torch.float64))
+    assert torch.allclose(nxt[0, 0, :2], state[0, 0, :2])
+    assert math.isclose(float(nxt[0, 0, 2]), math.pi / 4 - math.pi, abs_tol=1e-12)
+    assert torch.allclose(nxt[0, 0, 3:], torch.tensor([2.0, -0.5], dtype=torch.float64))
+    # heading along the wall, turning into it: the mirrored turn is free and taken
+    state = torch.tensor([[[26.4, 13.5, math.pi / 2, 2.0, -0.6]]], dtype=torch.float64)
+    nxt = model.step(state, torch.zeros(1, 1, 2, dtype=torch.float64))
+    mirrored = se2_step(state[0, 0, :3], torch.tensor([2.0, 0.6], dtype=torch.float64), 0.5)
+    assert torch.allclose(nxt[0, 0, :3], mirrored) and not geometry.in_collision(mirrored[:2])
