@@ -51,9 +51,16 @@ class TargetConfig:
     sine_frequency: float = 0.5
     sine_amplitude: float = 5.0
     turn_on_collision: float = math.pi / 4
-    # On a colliding move the target keeps its position and its velocity becomes gain * v + N(0, std^2).
+    # double_integrator: what a colliding move does. "reflect" (2019): the target keeps its position and its
+    # velocity becomes reflect_gain * v + N(0, reflect_noise_std^2). "detour" (ttenv v1): it keeps its position
+    # and leaves away from the nearest obstacle, and every step it is pushed away from the obstacle it heads
+    # into, by (|v| cos beta)+ / max(margin, d - detour_margin) (aia.envs.targets).
+    collision_rule: str = "reflect"
     reflect_gain: float = -0.4
     reflect_noise_std: float = 0.2
+    detour_margin: float = 3.5
+    # The speed at which the push turns 3/4 of a half turn from the obstacle's direction.
+    detour_speed: float = 1.75
     # Initial distance from the robot, uniform in [min, max] at a uniform angle (2019 code: exactly 8 m).
     init_distance: list[float] = field(default_factory=lambda: [0.0, 8.0])
     # Collision-free placements are drawn from this many candidates before falling back to a free cell.
@@ -158,6 +165,7 @@ class TrackingConfig:
 
 _CHOICES = {
     "target.model": TARGET_MODELS,
+    "target.collision_rule": ("reflect", "detour"),
     "belief.filter": tuple(FILTERS),
     "belief.control": CONTROLS,
     "belief.init_anchor": ("target", "robot"),
@@ -171,9 +179,9 @@ _POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "targ
 _POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing",
              "belief.init_cov", "target.sine_step", "belief.ukf_kappa")
 _NON_NEGATIVE = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin", "belief.init_offset",
-                 "reward.obstacle_margin", "reward.collision_penalty", "target.turn_on_collision",
+                 "reward.obstacle_margin", "reward.collision_penalty", "target.turn_on_collision", "target.detour_margin",
                  "belief.init_offset_angle")
-_NUMBERS = ("target.reflect_gain", "target.sine_frequency", "target.sine_amplitude", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
+_NUMBERS = ("target.reflect_gain", "target.sine_frequency", "target.sine_amplitude", "target.detour_speed", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
 _POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit", "target.angular_speed_limit")
 # The filter's model when belief.model is null: the true targets' own.
 DEFAULT_BELIEF_MODEL = {"double_integrator": "double_integrator", "se2_sine": "se2", "se2_constant": "se2_velocity"}

@@ -59,6 +59,7 @@ class MapGeometry:
         self.num_bins = max(1, round(2 * math.pi / ray_spacing))
         self.bin_width = 2 * math.pi / self.num_bins
         self.fov_bins = max(1, min(self.num_bins, round(fov / self.bin_width)))
+        self._nearest_cell: Tensor | None = None  # nearest_obstacle's table, built on first use
         self.ray_table = (
             # built on the CPU from the map's own grid, then moved
             _polar_obstacle_table(grid_map.occupancy, self.resolution, sensor_range, self.num_bins).to(
@@ -138,6 +139,32 @@ class MapGeometry:
             (torch.where(seen, best, self.sensor_range), torch.where(seen, bearing, math.pi)), dim=-1
         )
 
+    def nearest_obstacle(self, xy: Tensor) -> tuple[Tensor, Tensor]:
+        """``(distance [...], direction [...])`` from each position ``xy [..., 2]`` to the nearest obstacle in
+        any direction and at any range: the nearest of the walls (the bounds shrunk by ``margin``) and the
+        centres of the occupied cells (the nearest centre to the centre of ``xy``'s cell, from a table built
+        on first use), ``direction`` the world-frame angle towards it.
+
+        ttenv's targets ask this (its ``get_closest_obstacle`` over a full turn of rays to 1 km: the first
+        wall or occupied cell along each ray, the closest of all).
+        """
+        x, y = xy[..., 0], xy[..., 1]
+        walls = torch.stack((x - self.margin, (self.size[0] - self.margin) - x,
+                             y - self.margin, (self.size[1] - self.margin) - y), -1)
+        distance, side = walls.min(-1)
+        direction = torch.tensor([math.pi, 0.0, -math.pi / 2, math.pi / 2], dtype=self.dtype,
+                                 device=self.device)[side]
+        if self.has_obstacles:
+            if self._nearest_cell is None:
+                self._nearest_cell = _nearest_occupied(self.map).to(self.device, self.dtype)
+            centre = self._nearest_cell[self._cell_index(xy, self.resolution, self.occupancy.shape)]
+            delta = centre - xy
+            cell_distance = torch.linalg.vector_norm(delta, dim=-1)
+            closer = cell_distance < distance
+            distance = torch.where(closer, cell_distance, distance)
+            direction = torch.where(closer, torch.atan2(delta[..., 1], delta[..., 0]), direction)
+        return distance, direction
+
     def _wall_distance(self, xy: Tensor, angles: Tensor) -> Tensor:
         """Distance along each ray (``angles [..., R]``) from ``xy [..., 2]`` to the margin-shrunk bounds."""
         direction = torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1)
@@ -192,6 +219,20 @@ def _collision_grid(grid_map: GridMap, margin: float, supersample: int) -> Tenso
             dy = torch.clamp(torch.maximum(y0[:, None] - py, py - (y0[:, None] + res)), min=0.0)
             grid |= occupied & (dx * dx + dy * dy < margin * margin)
     return grid
+
+
+def _nearest_occupied(grid_map: GridMap, chunk: int = 4096) -> Tensor:
+    """``[ny * nx, 2]`` the centre of the occupied cell nearest to each cell's centre (float64)."""
+    res = grid_map.resolution
+    ny, nx = grid_map.shape
+    rows, cols = torch.meshgrid(torch.arange(ny), torch.arange(nx), indexing="ij")
+    centres = (torch.stack((cols, rows), -1).reshape(-1, 2).double() + 0.5) * res
+    occupied = centres[grid_map.occupancy.flatten()]
+    nearest = torch.empty_like(centres)
+    for start in range(0, centres.shape[0], chunk):
+        block = centres[start:start + chunk]
+        nearest[start:start + chunk] = occupied[torch.cdist(block, occupied).argmin(-1)]
+    return nearest
 
 
 def _polar_obstacle_table(occupancy: Tensor, resolution: float, max_range: float, num_bins: int) -> Tensor:

@@ -4,9 +4,14 @@ A model owns the layout of ``target_state [B, N, D]`` (the position always first
 of standard normals it takes per target and step, its initial state and its step. Every model keeps its
 targets in free space: a move into collision keeps the position.
 
-* ``double_integrator`` ``[x, y, vx, vy]`` (SPEC 3): ``x' = A x + w``, ``w ~ N(0, W)``; a colliding move keeps
-  the position and reflects the velocity, ``v <- gain v' + N(0, std^2)`` (2019 rule); the speed optionally
-  rescaled to ``speed_limit``.
+* ``double_integrator`` ``[x, y, vx, vy]`` (SPEC 3): ``x' = A x + w``, ``w ~ N(0, W)``; the speed optionally
+  rescaled to ``speed_limit``. ``collision_rule="reflect"`` (2019): a colliding move keeps the position and
+  reflects the velocity, ``v <- gain v' + N(0, std^2)``. ``"detour"`` (ttenv v1's obstacle-aware targets):
+  with ``(d, beta)`` the distance and bearing (from the velocity's direction) of the nearest obstacle, a
+  colliding move keeps the position and leaves at speed ``|v| + N(0, 1)`` in the direction ``beta -+ (1 + U)
+  pi/2`` (away from the obstacle's side); and every step the velocity gains ``dt * a (cos, sin)(beta -+ rot)``
+  with ``a = max(0, |v| cos beta) / max(floor, d - detour_margin)``, ``rot = pi/2 (1 + sigmoid(|v| -
+  detour_speed))``: a push away from what the target is heading into.
 * ``se2_sine`` ``[x, y, theta, v, w, ox, oy, otheta]`` (ttenv v2's ``SinePolicy``): the target follows the
   curve ``y = b sin(a x)`` of a frame at ``(ox, oy, otheta)``, steering each step to the curve's point
   ``x_step`` further on: ``w = wrap(theta* - theta) / dt``, ``v = |p* - p| / dt``, clipped to the speed limits,
@@ -58,8 +63,11 @@ class DoubleIntegratorTargets(TargetModel):
     dim, normals = 4, 6
 
     def __init__(self, geometry: MapGeometry, dt: float, q: float, reflect_gain: float, reflect_noise_std: float,
-                 speed_limit: float | None) -> None:
+                 speed_limit: float | None, collision_rule: str = "reflect", detour_margin: float = 3.5,
+                 detour_speed: float = 1.75, detour_floor: float = 1.0) -> None:
         super().__init__(geometry, dt)
+        self.collision_rule = collision_rule
+        self.detour_margin, self.detour_speed, self.detour_floor = detour_margin, detour_speed, detour_floor
         transition, noise = double_integrator(dt, q)
         # W is positive definite for q > 0 (its 2x2 block has determinant q^2 dt^4 / 12).
         chol = torch.linalg.cholesky(noise) if q > 0 else torch.zeros(4, 4, dtype=torch.float64)
@@ -74,14 +82,37 @@ class DoubleIntegratorTargets(TargetModel):
         moved = belief.bmm(state.unsqueeze(-2), self.transition.mT).squeeze(-2)
         moved = moved + belief.bmm(normals[..., :4].unsqueeze(-2), self.noise_chol.mT).squeeze(-2)
         bounced = self.geometry.in_collision(moved[..., :2])
-        bounce_velocity = self.reflect_gain * moved[..., 2:] + self.reflect_noise_std * normals[..., 4:6]
-        reflected = torch.cat((state[..., :2], bounce_velocity), -1)
-        moved = torch.where(bounced[..., None], reflected, moved)
+        if self.collision_rule == "reflect":
+            bounce_velocity = self.reflect_gain * moved[..., 2:] + self.reflect_noise_std * normals[..., 4:6]
+        else:
+            bounce_velocity, push = self._detour(state, normals[..., 4:6])
+        moved = torch.where(bounced[..., None], torch.cat((state[..., :2], bounce_velocity), -1), moved)
+        if self.collision_rule == "detour":
+            moved = torch.cat((moved[..., :2], moved[..., 2:] + push), -1)
         if self.speed_limit is not None:
             speed = torch.linalg.vector_norm(moved[..., 2:], dim=-1, keepdim=True)
             scale = torch.clamp(self.speed_limit / speed.clamp_min(1e-12), max=1.0)
             moved = torch.cat((moved[..., :2], moved[..., 2:] * scale), -1)
         return moved
+
+
+    def _detour(self, state: Tensor, normals: Tensor) -> tuple[Tensor, Tensor]:
+        """ttenv v1's ``(velocity after a collision, the step's push)`` from the current ``state``."""
+        velocity = state[..., 2:]
+        heading = torch.atan2(velocity[..., 1], velocity[..., 0])
+        speed = torch.linalg.vector_norm(velocity, dim=-1)
+        distance, direction = self.geometry.nearest_obstacle(state[..., :2])
+        bearing = wrap_angle(direction - heading)
+        side = torch.where(bearing >= 0, -1.0, 1.0)
+        uniform = 0.5 * (1.0 + torch.erf(normals[..., 1] / math.sqrt(2.0)))
+        leave = bearing + side * (1.0 + uniform) * (math.pi / 2) + heading
+        leave_speed = speed + normals[..., 0]
+        after_collision = leave_speed.unsqueeze(-1) * torch.stack((torch.cos(leave), torch.sin(leave)), -1)
+        turn = (math.pi / 2) * (1.0 + torch.sigmoid(speed - self.detour_speed))
+        accel = (speed * torch.cos(bearing)).clamp_min(0.0) / (distance - self.detour_margin).clamp_min(self.detour_floor)
+        push_angle = bearing + side * turn + heading
+        push = (self.dt * accel).unsqueeze(-1) * torch.stack((torch.cos(push_angle), torch.sin(push_angle)), -1)
+        return after_collision, push
 
 
 class SineTargets(TargetModel):

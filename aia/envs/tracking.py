@@ -359,7 +359,8 @@ def make_targets(config: TrackingConfig, geometry: MapGeometry) -> TargetModel:
     """The true targets' model of a setting (``env.target.model``)."""
     t, dt = config.target, config.dt
     if t.model == "double_integrator":
-        return DoubleIntegratorTargets(geometry, dt, t.q, t.reflect_gain, t.reflect_noise_std, t.speed_limit)
+        return DoubleIntegratorTargets(geometry, dt, t.q, t.reflect_gain, t.reflect_noise_std, t.speed_limit,
+                                       t.collision_rule, t.detour_margin, t.detour_speed, max(config.margin, 1e-6))
     v_max = math.inf if t.speed_limit is None else t.speed_limit
     w_max = math.inf if t.angular_speed_limit is None else t.angular_speed_limit
     if t.model == "se2_sine":

@@ -10,7 +10,7 @@ import torch
 from aia.envs import make_env
 from aia.envs.dynamics import se2_step
 from aia.envs.sensing import map_geometry
-from aia.envs.targets import ConstantSpeedTargets, SineTargets
+from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, SineTargets
 
 
 def _geometry(name="obstacles4"):
@@ -68,3 +68,36 @@ def test_constant_speed_target_mirrors_its_turn_at_an_obstacle():
     nxt = model.step(state, torch.zeros(1, 1, 2, dtype=torch.float64))
     mirrored = se2_step(state[0, 0, :3], torch.tensor([2.0, 0.6], dtype=torch.float64), 0.5)
     assert torch.allclose(nxt[0, 0, :3], mirrored) and not geometry.in_collision(mirrored[:2])
+
+
+def test_detour_targets_leave_an_obstacle_they_run_into_and_are_pushed_away_by_hand():
+    geometry = _geometry("empty_small")
+    model = DoubleIntegratorTargets(geometry, 0.5, q=0.0, reflect_gain=-0.4, reflect_noise_std=0.2, speed_limit=None,
+                                    collision_rule="detour", detour_margin=3.5, detour_speed=1.75, detour_floor=0.5)
+    # heading east at 2 m/s, 0.8 m from the east wall's margin (x = 26.5): the move collides
+    state = torch.tensor([[[25.7, 13.5, 2.0, 0.0]]], dtype=torch.float64)
+    normals = torch.tensor([[[0, 0, 0, 0, 0.3, 0.0]]], dtype=torch.float64)  # speed + 0.3, U = 1/2
+    nxt = model.step(state, normals)
+    assert torch.allclose(nxt[0, 0, :2], state[0, 0, :2])
+    # the wall is straight ahead (bearing 0 >= 0): leave at 0 - 1.5 pi/2 from the heading, at 2.3 m/s
+    leave = 2.3 * torch.tensor([math.cos(-0.75 * math.pi), math.sin(-0.75 * math.pi)], dtype=torch.float64)
+    turn = math.pi / 2 * (1 + 1 / (1 + math.exp(-(2.0 - 1.75))))
+    accel = 2.0 / max(0.5, 0.8 - 3.5)
+    push = 0.5 * accel * torch.tensor([math.cos(-turn), math.sin(-turn)], dtype=torch.float64)
+    assert torch.allclose(nxt[0, 0, 2:], leave + push)
+    # moving away from the nearest wall (behind it): no push, the plain double integrator
+    far = torch.tensor([[[25.0, 13.5, -1.0, 0.0]]], dtype=torch.float64)
+    moved = torch.tensor([[[24.5, 13.5, -1.0, 0.0]]], dtype=torch.float64)
+    assert torch.allclose(model.step(far, torch.zeros(1, 1, 6, dtype=torch.float64)), moved)
+
+
+def test_nearest_obstacle_by_hand():
+    geometry = _geometry("obstacles4")
+    xy = torch.tensor([[0.9, 18.0], [18.1, 1.3]], dtype=torch.float64)
+    distance, direction = geometry.nearest_obstacle(xy)
+    assert torch.allclose(distance, torch.tensor([0.4, 0.8], dtype=torch.float64))   # the walls, margin 0.5
+    assert torch.allclose(direction, torch.tensor([math.pi, -math.pi / 2], dtype=torch.float64))
+    occupied = geometry.map.occupancy.nonzero()[0]            # an occupied cell (row, col): its centre is at 0 m
+    centre = (occupied.flip(0).double() + 0.5) * geometry.resolution
+    distance, _ = geometry.nearest_obstacle(centre[None])
+    assert float(distance[0]) < 1e-9
