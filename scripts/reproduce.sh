@@ -8,10 +8,12 @@
 #
 #   scripts/reproduce.sh                                  # the whole protocol (hours on a laptop CPU)
 #   SETTINGS="empty1" SEEDS=0,1 FRAMES=2000 ARVI_SEEDS=0,1 scripts/reproduce.sh   # a quick smoke run
+#   SEEDS=0-19 ARVI_SEEDS=0-19 ARVI_NODES=25000 scripts/reproduce.sh   # 20 seeds per learner and per ARVI baseline
 #
 # Environment variables (defaults in brackets):
 #   SETTINGS     settings to run [empty1 obstacles1 small2 small3]
-#   SEEDS        learner seeds [0,1,2,3,4];  ARVI_SEEDS  planner seeds [0,...,9]
+#   SEEDS        learner seeds [0,1,2,3,4];  ARVI_SEEDS  planner seeds [0,...,9]; both take ranges too:
+#                SEEDS=0-19 is 0,1,...,19, and SEEDS=0-4,10,12-13 mixes both
 #   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
 #   TRAIN_OVERRIDES  more aia-train overrides, space-separated, e.g. "device=cuda" or "compile.update=false" []
 #   JOBS         populations in parallel [2] (one aia-train -m over all settings, hydra/launcher=population:
@@ -70,6 +72,25 @@ case "$LAUNCHER" in
     echo "LAUNCHER='$LAUNCHER': expected population or population_slurm" >&2
     exit 2 ;;
 esac
+# seed_list NAME VALUE: VALUE's seeds and ranges (0-19, 0-4,10) as a comma-separated list; exit 2 naming a bad one
+seed_list() {
+  local item seeds=() k
+  local IFS=,
+  for item in $2; do
+    if [[ "$item" =~ ^[0-9]+$ ]]; then
+      seeds+=("$((10#$item))")
+    elif [[ "$item" =~ ^([0-9]+)-([0-9]+)$ ]] && (( 10#${BASH_REMATCH[1]} <= 10#${BASH_REMATCH[2]} )); then
+      for (( k = 10#${BASH_REMATCH[1]}; k <= 10#${BASH_REMATCH[2]}; k++ )); do seeds+=("$k"); done
+    else
+      echo "$1='$2': '$item' is not a seed or a rising range; expected e.g. 0,1,2 or 0-19 or 0-4,10" >&2
+      exit 2
+    fi
+  done
+  if (( ${#seeds[@]} == 0 )); then echo "$1='$2': no seeds; expected e.g. 0,1,2 or 0-19 or 0-4,10" >&2; exit 2; fi
+  echo "${seeds[*]}"
+}
+SEED_LIST=$(seed_list SEEDS "$SEEDS")
+ARVI_SEED_LIST=$(seed_list ARVI_SEEDS "$ARVI_SEEDS")
 if [[ -n "${ARVI_NODES:-}" ]]; then
   ARVI_BUDGET_OVERRIDES=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
 else
@@ -132,7 +153,7 @@ baseline() {
 # (aia/training/members.py), so each setting trains two populations of 2 x seeds members; the launcher starts
 # the largest populations first, $JOBS at a time.
 phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations ($LAUNCHER)"
-aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEEDS" threads=1 \
+aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEED_LIST" threads=1 \
   "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.sweep.dir=$OUT/sweeps/learners" \
   "$(run_dir learners)" \
   'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
@@ -140,7 +161,7 @@ ENVS=$(joined "${SETTING_LIST[@]}")
 for min_range in $ARVI_MIN_RANGES; do
   baseline "$min_range"
   phase "$label: $SETTINGS x seeds $ARVI_SEEDS"
-  aia-eval -m "${ARVI_LAUNCHER[@]}" policy=arvi "env=$ENVS" "seed=$ARVI_SEEDS" \
+  aia-eval -m "${ARVI_LAUNCHER[@]}" policy=arvi "env=$ENVS" "seed=$ARVI_SEED_LIST" \
     "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_OVERRIDES[@]}" \
     "hydra.sweep.dir=$OUT/sweeps/$name" "$(run_dir "$name")" \
     'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'

@@ -21,7 +21,7 @@ def run_script(cwd: Path, **env: str) -> subprocess.CompletedProcess:
 
 def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajectory(tmp_path):
     result = run_script(
-        tmp_path, SETTINGS="empty1 small2", SEEDS="0", METHODS="adfq_egreedy,adfq_ts", FRAMES="300", ARVI_SEEDS="0",
+        tmp_path, SETTINGS="empty1 small2", SEEDS="0", METHODS="adfq_egreedy,adfq_ts", FRAMES="300", ARVI_SEEDS="0-1",
         ARVI_EPISODES="1", ARVI_NODES="100", ARVI_MIN_RANGES="2", JOBS="2", OUT="out",
         TRAIN_OVERRIDES="compile.update=false compile.env=false compile.policy=false",
     )
@@ -36,7 +36,8 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
         # Run folders are named by what varies (the compile switches are not part of a run's name).
         for method in ("adfq_egreedy", "adfq_ts"):
             assert (setting / "learners" / f"method={method},seed=0" / "run.mcap").is_file()
-        assert (setting / "arvi_min2" / "seed=0" / "run.mcap").is_file()
+        for seed in (0, 1):  # ARVI_SEEDS="0-1": a range
+            assert (setting / "arvi_min2" / f"seed={seed}" / "run.mcap").is_file()
         assert not (setting / "arvi").exists()  # ARVI_MIN_RANGES="2": only the 2 m baseline
         # The trajectory step reads the checkpoint of a run whose folder name holds '=' and ','.
         assert (setting / "trajectory" / "run.mcap").is_file()
@@ -63,6 +64,20 @@ def test_an_unknown_setting_is_named(tmp_path):
     result = run_script(tmp_path, SETTINGS="empty9", OUT="out")
     assert result.returncode == 2
     assert "unknown setting 'empty9'" in result.stderr and "empty1 obstacles1 small2 small3" in result.stderr
+
+
+def test_seed_ranges_expand_and_a_bad_one_is_named(tmp_path):
+    script = SCRIPT.read_text()
+    seed_list = script[script.index("seed_list() {"):script.index("\n}\n", script.index("seed_list() {")) + 3]
+    expanded = subprocess.run(["bash", "-c", seed_list + "seed_list SEEDS 0-3,7,10-12; seed_list SEEDS 0-19"],
+                              capture_output=True, text=True, check=True).stdout.split()
+    assert expanded == ["0,1,2,3,7,10,11,12", ",".join(map(str, range(20)))]
+    for variable, value, bad in (("SEEDS", "5-2", "5-2"), ("ARVI_SEEDS", "0-4,x", "x")):
+        result = run_script(tmp_path, **{variable: value}, OUT="out")
+        assert result.returncode == 2
+        assert result.stderr == (f"{variable}='{value}': '{bad}' is not a seed or a rising range; expected e.g. "
+                                 "0,1,2 or 0-19 or 0-4,10\n")
+    assert not (tmp_path / "out").exists()  # refused before anything was written
 
 
 def test_an_unknown_launcher_is_named(tmp_path):
