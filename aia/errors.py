@@ -1,5 +1,6 @@
 """The errors the apps report in one line: invalid user input (a config value, a map file, a command-line
-argument; exit status 2) and a sweep job lost with the process that ran it (exit status 1)."""
+argument; exit status 2) and a run that failed for a reason outside its config (:class:`RunFailed`: a sweep job
+lost with its process, a file that could not be written, a run folder in use; exit status 1)."""
 
 from __future__ import annotations
 
@@ -21,9 +22,35 @@ class ConfigError(ValueError):
         return " ".join(f"{where}{self.key}={self.value!r}: expected {self.allowed}".split())
 
 
-class JobFailed(RuntimeError):
-    """A sweep job that failed for a reason outside its config: the process running it died (killed for its
-    memory, a crash). The apps print it in one line and exit with status 1 (:mod:`aia.apps.hydra_app`)."""
+class RunFailed(RuntimeError):
+    """A run that could not go on for a reason outside its config; ``str()`` is one line saying what to do.
+    The apps print it and exit with status 1 (:mod:`aia.apps.hydra_app`)."""
+
+
+class JobFailed(RunFailed):
+    """A sweep job whose process died (killed for its memory, a crash)."""
+
+
+class WriteFailed(RunFailed):
+    """A file of the run could not be written (a full disk, a lost mount, no permission): its ``path`` and the
+    OS's ``reason``."""
+
+    def __init__(self, path: object, reason: str) -> None:
+        self.path, self.reason = str(path), reason
+        super().__init__(path, reason)  # the arguments: pickling (sweep workers) rebuilds it
+
+    def __str__(self) -> str:
+        return (f"could not write {self.path} ({self.reason}): make room or fix the folder, then continue with "
+                "resume=auto (the last whole checkpoint is kept)")
+
+
+def os_error_text(error: OSError) -> str:
+    """``"[Errno 28] No space left on device"`` without the file name (the caller names the file)."""
+    return f"[Errno {error.errno}] {error.strerror}" if error.errno is not None else str(error)
+
+
+class FolderLocked(RunFailed):
+    """A run folder in use by another run (:mod:`aia.training.folder_lock`)."""
 
 
 def one_line(message: object) -> str:

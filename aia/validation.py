@@ -8,7 +8,6 @@ machine has, and the env setting with its map (:func:`aia.envs.factory.to_tracki
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -69,6 +68,7 @@ def validate_train_config(cfg: DictConfig) -> None:
     if resume is not None and str(resume) != "auto":
         require(Path(str(resume)).is_file(), "resume", resume, "null, auto or an existing checkpoint .pt file")
     check_number("checkpoint_every_s", _value(cfg, "checkpoint_every_s"), gt=0)
+    check_number("lock_wait_s", _value(cfg, "lock_wait_s"), ge=0)
     _check_learner(cfg)
     _check_logger(cfg)
     to_tracking_config(cfg.env)
@@ -132,10 +132,18 @@ def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None
                                       "carries its own setting (env and planner apply to policy=arvi)")
     require(not OmegaConf.is_missing(cfg, "checkpoint"), "checkpoint", "???",
             "the path of a checkpoint .pt written by aia-train (required with policy=checkpoint)")
-    path = Path(str(cfg.checkpoint))
-    require(path.is_file(), "checkpoint", str(path), "an existing checkpoint .pt file written by aia-train")
-    require(zipfile.is_zipfile(path), "checkpoint", str(path), "a torch checkpoint (a .pt zip archive) "
-                                                              "written by aia-train")
+    check_checkpoint_file("checkpoint", Path(str(cfg.checkpoint)))
+
+
+def check_checkpoint_file(key: str, path: Path) -> None:
+    """``path`` is an existing, undamaged checkpoint file (every record's CRC-32 checked)."""
+    from aia.training.checkpoint import PREVIOUS_CHECKPOINT_NAME  # imported here: aia.training imports this module
+    from aia.training.checkpoint_files import checkpoint_damage
+
+    require(path.is_file(), key, str(path), "an existing checkpoint .pt file written by aia-train")
+    problem = checkpoint_damage(path)
+    require(problem is None, key, str(path), f"an undamaged torch checkpoint written by aia-train, but {problem}: "
+            f"use another checkpoint (the run's {PREVIOUS_CHECKPOINT_NAME} is the one before its last)")
 
 
 def validate_rollout_config(cfg: DictConfig) -> None:

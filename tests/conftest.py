@@ -1,4 +1,4 @@
-"""Session-wide settings of the test run.
+"""Session-wide settings of the test run, and the fault-injecting ``full_disk`` fixture.
 
 The suite runs in two pytest-xdist workers (``-n 2`` in pyproject's ``addopts``) on the 2-core machine: each
 worker, and every process a test starts, computes on one thread, so the two workers do not contend for the
@@ -7,10 +7,53 @@ cores (two workers at two threads each were slower than one worker).
 
 from __future__ import annotations
 
+import errno
+import io
 import os
+from collections.abc import Callable
+from types import ModuleType
 
+import pytest
 import torch
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ["OMP_NUM_THREADS"] = "1"  # inherited by the apps' subprocesses
     torch.set_num_threads(1)
+
+
+class FullDiskFile(io.FileIO):
+    """A file on a disk with room for its first ``room`` bytes: a write past them writes what fits, then fails
+    as on a full disk (``ENOSPC``)."""
+
+    def __init__(self, path: str | os.PathLike, mode: str, room: int) -> None:
+        super().__init__(path, mode)
+        self.room = room
+
+    def write(self, data) -> int:
+        fits = max(0, self.room - self.tell())
+        if len(data) > fits:
+            super().write(bytes(data)[:fits])
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return super().write(data)
+
+
+@pytest.fixture
+def full_disk(monkeypatch) -> Callable[..., None]:
+    """``full_disk(module, room, after=0)``: the files ``module`` creates (``open`` with mode ``wb`` or ``xb``)
+    after its first ``after`` ones hold ``room`` bytes each, then fail as on a full disk."""
+
+    def install(module: ModuleType, room: int, after: int = 0) -> None:
+        created = 0
+
+        def faulty_open(path, mode="r", *args, **kwargs):
+            nonlocal created
+            if mode not in ("wb", "xb"):
+                return open(path, mode, *args, **kwargs)
+            created += 1
+            if created <= after:
+                return open(path, mode, *args, **kwargs)
+            return io.BufferedWriter(FullDiskFile(path, mode, room))
+
+        monkeypatch.setattr(module, "open", faulty_open, raising=False)
+
+    return install

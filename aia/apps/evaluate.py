@@ -28,6 +28,7 @@ from torchrl.envs import StepCounter
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
+from aia.errors import ConfigError, one_line
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.memory import keep_freed_memory
@@ -35,22 +36,22 @@ from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
 from aia.training import make_actor
 from aia.training.members import check_population
-from aia.validation import validate_eval_config
+from aia.validation import check_checkpoint_file, validate_eval_config
 
 POLICIES = ("checkpoint", "arvi")
 
 
 def load_checkpoint(path: str | Path) -> dict:
-    """A checkpoint written by ``aia-train``, or a ValueError naming the path and what is wrong."""
+    """A checkpoint written by ``aia-train``, or a :class:`ConfigError` (a ValueError) naming the path and what is
+    wrong: missing, damaged (:func:`~aia.training.checkpoint_files.checkpoint_damage`), unreadable or foreign."""
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"checkpoint={str(path)!r} does not exist")
+    check_checkpoint_file("checkpoint", path)
     try:
         checkpoint = torch.load(path, weights_only=False, map_location="cpu")
     except Exception as err:  # torch raises several types for a file that is not a checkpoint
-        raise ValueError(f"checkpoint={str(path)!r} is not a readable torch checkpoint ({err})") from None
+        raise ConfigError("checkpoint", str(path), f"a readable torch checkpoint ({one_line(err)})") from None
     if not isinstance(checkpoint, dict) or not {"config", "actor"} <= checkpoint.keys():
-        raise ValueError(f"checkpoint={str(path)!r} was not written by aia-train (no 'config'/'actor' entries)")
+        raise ConfigError("checkpoint", str(path), "a checkpoint written by aia-train (no 'config'/'actor' entries)")
     return checkpoint
 
 

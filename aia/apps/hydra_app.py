@@ -3,10 +3,10 @@
 Libraries log at WARNING and above only (torchrl's INFO lines would break into the progress bar). An
 invalid input (a :class:`~aia.errors.ConfigError` from the validation layer, or a command line Hydra
 cannot compose: an unknown group option or key, a malformed override) ends the app with one line on stderr,
-``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. A sweep job whose process died
-(:class:`~aia.errors.JobFailed`) ends it, after the other jobs, with one line and exit status 1. Any other
-exception is an internal
-error and keeps its full traceback. ``--debug`` (taken off the command line) or ``HYDRA_FULL_ERROR=1`` keeps
+``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. A run that fails for a reason outside
+its config (:class:`~aia.errors.RunFailed`: a file it could not write, a run folder in use, a sweep job whose
+process died, this one after the other jobs) ends it with one line and exit status 1. Any other exception is an
+internal error and keeps its full traceback. ``--debug`` (taken off the command line) or ``HYDRA_FULL_ERROR=1`` keeps
 the traceback of invalid input too.
 """
 
@@ -26,13 +26,13 @@ from hydra.errors import ConfigCompositionException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from aia.errors import ConfigError, JobFailed, one_line
+from aia.errors import ConfigError, RunFailed, one_line
 
 COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
 DEBUG_FLAG = "--debug"
 QUIET_LIBRARIES = ("torchrl",)
 EXIT_USAGE = 2
-EXIT_FAILURE = 1  # a sweep's job lost with its process
+EXIT_FAILURE = 1  # a run failed for a reason outside its config (RunFailed)
 
 
 def group_options(group: str) -> str:
@@ -84,6 +84,10 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
                 if debug:
                     raise
                 _exit_with(prog, err)
+            except RunFailed as err:
+                if debug:
+                    raise
+                _exit_with(prog, err, EXIT_FAILURE)
 
         guarded.population_task = population
         entry = hydra.main(config_path="pkg://aia.conf", config_name=config_name, version_base="1.3")(guarded)
@@ -105,7 +109,7 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
                 if debug:
                     raise
                 _exit_with(prog, err)
-            except JobFailed as err:  # a sweep's job whose process died (the others ran to their end)
+            except RunFailed as err:  # a sweep's failed job (the others ran to their end)
                 if debug:
                     raise
                 _exit_with(prog, err, EXIT_FAILURE)

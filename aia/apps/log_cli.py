@@ -9,7 +9,8 @@
     aia-log render RUN --episode last --out episode.gif        # or .png: a strip of --frames frames
 
 RUN arguments are files, folders (searched for ``*.mcap``) or globs. A run killed before it closed its log
-is read up to its last complete chunk and reported as truncated.
+is read up to its last complete chunk and reported as truncated; a damaged chunk (its CRC-32 does not match) is
+read around and reported in one line naming it and when its messages were logged.
 """
 
 from __future__ import annotations
@@ -40,13 +41,12 @@ SUMMARY_KEYS = ("algo", "exploration", "env.map", "env.num_targets", "seed", "fr
 
 
 def _status(run: RunLog) -> str:
-    if run.complete and not run.skipped_chunks and not run.failure:
+    if run.complete and not run.damage and not run.failure:
         return "complete"
     parts = [run.failure] if run.failure else []
     if not run.complete:
         parts.append(f"truncated: {len(run.messages)} messages recovered ({run.problem})")
-    if run.skipped_chunks:
-        parts.append(f"{run.skipped_chunks} corrupt chunk(s) skipped")
+    parts += run.damage
     return "; ".join(parts)
 
 

@@ -25,12 +25,20 @@ Crash safety
     whenever the caller asks (``aia-train`` flushes after every evaluation). A process killed with SIGKILL
     keeps every message before its last flush: ``aia-log`` recovers the complete chunks of a file without
     a footer. :meth:`close` (also the TorchRL ``shutdown``) writes the summary and the footer; it is safe to
-    call twice.
+    call twice. Every chunk carries the CRC-32 of its records and the data section the CRC-32 of all its bytes;
+    ``aia-log`` checks both (:mod:`aia.logging.reader`).
+
+Write errors
+    A failed write (a full disk, a lost mount) raises :class:`~aia.errors.WriteFailed` naming the file and the
+    OS error; the log then takes no more records. Closing it cuts the file back to its last flush (a torn chunk
+    would hide what follows it) and appends the status record there if the disk takes it: the file reads as a
+    log cut after its last flush, with ``failed: <reason>``.
 """
 
 from __future__ import annotations
 
 import base64
+import contextlib
 import getpass
 import io
 import json
@@ -40,7 +48,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from datetime import datetime, timezone
 from importlib import metadata as package_metadata
 from pathlib import Path
@@ -49,13 +57,15 @@ from typing import Any
 import numpy as np
 import torch
 import yaml
+from mcap.data_stream import RecordBuilder
+from mcap.records import Metadata
 from mcap.writer import CompressionType, Writer
 from omegaconf import DictConfig, OmegaConf
 from PIL import Image
 from torch import Tensor
 from torchrl.record.loggers import Logger
 
-from aia.errors import one_line
+from aia.errors import RunFailed, WriteFailed, one_line, os_error_text
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA, flatten
 
@@ -74,28 +84,47 @@ class MCAPRun:
             raise ValueError(f"chunk_size={chunk_size} must be >= 1 byte")
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s={flush_interval_s} must be > 0")
-        path.parent.mkdir(parents=True, exist_ok=True)
         if path.exists():
             raise FileExistsError(f"{path} exists already: a run log is never overwritten")
         self.path = path
-        self._file = open(path, "wb")  # noqa: SIM115  (closed by close())
-        self._writer = Writer(self._file, chunk_size=chunk_size, compression=COMPRESSIONS[compression])
-        self._writer.start(profile="", library="aia")
+        self.failure: WriteFailed | None = None  # the failed write, after which the log takes no more records
+        self.status: dict[str, str] | None = None  # the status record, written again when the log is cut back
+        self._flushed_size = 0  # the file's size at its last flush: where a failed log is cut back to
+        self.closed = False
+        with self._writing():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(path, "xb")  # noqa: SIM115  (closed by finish())
+        self._writer = Writer(self._file, chunk_size=chunk_size, compression=COMPRESSIONS[compression],
+                              enable_crcs=True, enable_data_crcs=True)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._flush_interval_ns = int(flush_interval_s * 1e9)
         self._last_flush = self._last_time = time.time_ns()
-        self.closed = False
+        with self._writing():
+            self._writer.start(profile="", library="aia")
         self.flush()  # the header on disk at once: a just-started run's log is readable, never an empty file
+
+    @contextlib.contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Around every write: an OSError becomes :class:`WriteFailed` (kept in ``failure``); a failed log takes no
+        more records."""
+        if self.failure is not None:
+            raise self.failure
+        try:
+            yield
+        except OSError as err:
+            self.failure = WriteFailed(self.path, os_error_text(err))
+            raise self.failure from None
 
     def channel(self, topic: str, schema: str) -> int:
         """The channel id of ``topic`` (registered with ``schema`` on first use)."""
         channel = self._channels.get(topic)
         if channel is None:
-            if schema not in self._schemas:
-                self._schemas[schema] = self._writer.register_schema(
-                    schema, schemas.SCHEMA_ENCODING, schemas.schema_bytes(schema))
-            channel = self._writer.register_channel(topic, schemas.MESSAGE_ENCODING, self._schemas[schema])
+            with self._writing():
+                if schema not in self._schemas:
+                    self._schemas[schema] = self._writer.register_schema(
+                        schema, schemas.SCHEMA_ENCODING, schemas.schema_bytes(schema))
+                channel = self._writer.register_channel(topic, schemas.MESSAGE_ENCODING, self._schemas[schema])
             self._channels[topic] = channel
         return channel
 
@@ -106,34 +135,67 @@ class MCAPRun:
 
     def write(self, channel: int, data: bytes, log_time: int) -> None:
         """Add one message; flush when the last flush is more than ``flush_interval_s`` old."""
-        self._writer.add_message(channel, log_time, data, log_time)
+        with self._writing():
+            self._writer.add_message(channel, log_time, data, log_time)
         if log_time - self._last_flush > self._flush_interval_ns:
             self.flush()
 
     def metadata(self, name: str, values: Mapping[str, Any]) -> None:
         """A metadata record (string keys and values)."""
-        self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
+        with self._writing():
+            self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
 
     def attachment(self, name: str, media_type: str, data: bytes) -> None:
         """A file attached to the log."""
         stamp = self.now()
-        self._writer.add_attachment(stamp, stamp, name, media_type, data)
+        with self._writing():
+            self._writer.add_attachment(stamp, stamp, name, media_type, data)
 
     def flush(self) -> None:
         """Close the chunk in progress and flush the file: what is written survives a SIGKILL."""
         if not self.closed:
-            self._writer.flush()
+            with self._writing():
+                self._writer.flush()
+                self._flushed_size = self._file.tell()
             self._last_flush = time.time_ns()
 
+    def mark(self, status: Mapping[str, str]) -> None:
+        """The status record (why the run ended early), flushed at once; kept for :meth:`finish` should the log
+        have failed (then it is written where the log is cut back to)."""
+        self.status = dict(status)
+        self.metadata(STATUS_METADATA, self.status)
+        self.flush()
+
     def finish(self) -> None:
-        """Write the summary and the footer and close the file (idempotent)."""
+        """Write the summary and the footer and close the file (idempotent); a failed log is cut back instead
+        (see the module docstring). Raises :class:`WriteFailed` if this is the write that fails."""
         if self.closed:
             return
         self.closed = True
         try:
-            self._writer.finish()
+            with self._writing():
+                self._writer.finish()
+                self._file.close()
         finally:
-            self._file.close()
+            if self.failure is not None:
+                self._cut_back()
+
+    def _cut_back(self) -> None:
+        """After a failed write: the file cut back to its last flush, with the status record appended if the disk
+        takes it (best effort: the OS errors of a full disk are expected here)."""
+        with contextlib.suppress(OSError):
+            self._file.close()  # flushes what it buffers once more (and fails again, most likely): closed anyway
+        with contextlib.suppress(OSError), open(self.path, "r+b") as file:
+            file.truncate(self._flushed_size)
+            if self.status is not None:
+                record = RecordBuilder()
+                Metadata(STATUS_METADATA, self.status).write(record)
+                file.seek(self._flushed_size)
+                try:
+                    file.write(record.end())
+                    file.flush()
+                except OSError:
+                    file.truncate(self._flushed_size)
 
 
 class MCAPLogger(Logger):
@@ -181,20 +243,25 @@ class MCAPLogger(Logger):
     def mark_failed(self, reason: str, status: str = "failed") -> None:
         """Record why the run ended early: metadata ``status`` with ``status`` (``failed``, or ``stopped`` for an
         interrupted run) and a one-line ``reason``; ``aia-log summary`` shows it. Flushed at once."""
-        self.experiment.metadata(STATUS_METADATA, {"status": status, "reason": one_line(reason)})
-        self.experiment.flush()
         self._status_written = True
+        self.experiment.mark({"status": status, "reason": one_line(reason)})
 
     def shutdown(self, timeout: float | None = None) -> None:
-        """Flush, write the summary and the footer, close the file (idempotent). Called while an exception
-        propagates (``finally: logger.close()``) on a run not yet marked, it first marks the run: ``stopped``
-        for Ctrl-C or SIGTERM (``KeyboardInterrupt``, ``SystemExit``), ``failed`` with the error otherwise."""
+        """Write the summary and the footer, close the file (idempotent). Called while an exception propagates
+        (``finally: logger.close()``) on a run not yet marked, it first marks the run: ``stopped`` for Ctrl-C or
+        SIGTERM (``KeyboardInterrupt``, ``SystemExit``), ``failed`` with the error otherwise (a
+        :class:`~aia.errors.RunFailed` as its one line, others as ``<type>: <message>``)."""
+        if self._service_shutdown:
+            return
         error = sys.exc_info()[1]
-        if error is not None and not self._service_shutdown and not self._status_written:
+        if error is not None and not self._status_written:
             stopped = isinstance(error, (KeyboardInterrupt, SystemExit))
-            self.mark_failed(f"{type(error).__name__}: {error}" if str(error) else type(error).__name__,
-                             status="stopped" if stopped else "failed")
-        super().shutdown(timeout)
+            reason = (str(error) if isinstance(error, RunFailed) else
+                      f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)
+            with contextlib.suppress(WriteFailed):  # a failed log: the status is written as it is cut back
+                self.mark_failed(reason, status="stopped" if stopped else "failed")
+        self._service_shutdown = True
+        self.experiment.finish()  # the chunk in progress, the summary and the footer
 
     def log_hparams(self, cfg: DictConfig | Mapping[str, Any]) -> None:
         """The resolved config as metadata ``config`` (dotted keys) and as the attachment ``config.yaml``."""

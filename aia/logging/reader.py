@@ -2,14 +2,16 @@
 
 One sequential pass over the records (``mcap``'s ``StreamReader``) serves every case: a complete file
 ends with its footer; a file cut short (no footer) yields every complete chunk before the cut; a chunk
-whose CRC or compression is broken is skipped and counted. A file that is not MCAP raises
-:class:`RunLogError` with a one-line reason.
+whose CRC-32 or compression is broken is skipped, and described in :attr:`RunLog.damage` (which chunk, when its
+messages were logged); a data section whose CRC-32 (written by :class:`~aia.logging.MCAPLogger`) does not match
+is described there too. A file that is not MCAP raises :class:`RunLogError` with a one-line reason.
 """
 
 from __future__ import annotations
 
 import glob
 import json
+import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +22,7 @@ import yaml
 from mcap.exceptions import InvalidMagic
 from mcap.reader import breakup_chunk
 from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import CRCValidationError, StreamReader
 
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA
@@ -69,7 +71,7 @@ class RunLog:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: dict[str, bytes] = field(default_factory=dict)
     complete: bool = True          # the footer was read
-    skipped_chunks: int = 0        # chunks dropped for a bad CRC or a broken compression
+    damage: list[str] = field(default_factory=list)  # what was read around: damaged chunks, a bad data CRC
     problem: str | None = None     # why reading stopped before the footer
     segments: list[Path] = field(default_factory=list)  # later segments joined in (one per resume)
     _config: dict[str, Any] | None = field(default=None, init=False, repr=False)
@@ -175,7 +177,7 @@ def read_run(path: str | Path) -> RunLog:
         run.metadata = {k: v for k, v in run.metadata.items() if k != STATUS_METADATA} | part.metadata
         run.attachments |= part.attachments
         run.complete, run.problem = part.complete, part.problem
-        run.skipped_chunks += part.skipped_chunks
+        run.damage += part.damage
         run.segments.append(segment)
     return run
 
@@ -196,7 +198,8 @@ def _read_records(path: Path, stream) -> RunLog:
     schema_names: dict[int, str] = {}
     channels: dict[int, tuple[str, int]] = {}
     run = RunLog(path, messages=[], complete=False)
-    records = StreamReader(stream, emit_chunks=True).records
+    records = StreamReader(stream, emit_chunks=True, validate_crcs=True).records  # chunks: checked below
+    chunks = 0
 
     def take(record) -> None:
         if isinstance(record, Schema):
@@ -210,10 +213,11 @@ def _read_records(path: Path, stream) -> RunLog:
     try:
         for record in records:
             if isinstance(record, Chunk):
+                chunks += 1
                 try:
                     inner = breakup_chunk(record, validate_crc=True)
-                except Exception:  # noqa: BLE001  (a bad CRC or a broken compression: skip the chunk)
-                    run.skipped_chunks += 1
+                except Exception as err:  # noqa: BLE001  (a bad CRC or a broken compression: skip the chunk)
+                    run.damage.append(_damaged_chunk(chunks, record, err))
                     continue
                 for item in inner:
                     take(item)
@@ -225,6 +229,11 @@ def _read_records(path: Path, stream) -> RunLog:
                 run.complete = True
             else:
                 take(record)
+    except CRCValidationError:  # the data section's, checked at its end (it covers the chunks too)
+        if not run.damage:
+            run.damage.append("the data section fails its CRC-32 check: a record outside the chunks (a schema, "
+                              "channel, metadata or attachment) is damaged")
+        run.complete = True  # read to the end of its data (the summary after it only indexes the data)
     except InvalidMagic:
         if not run.messages and not run.metadata:
             raise RunLogError(f"{path}: not an MCAP file (bad magic bytes)") from None
@@ -239,6 +248,15 @@ def _read_records(path: Path, stream) -> RunLog:
 
 
 _MAGIC = b"\x89MCAP0\r\n"
+
+
+def _damaged_chunk(number: int, chunk: Chunk, error: Exception) -> str:
+    """``"chunk 3 (logged 09:40:01 -> 09:40:05) fails its CRC-32 check: its messages are skipped"``."""
+    logged = " -> ".join(time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ns / 1e9))
+                         for ns in (chunk.message_start_time, chunk.message_end_time))
+    what = ("fails its CRC-32 check" if isinstance(error, CRCValidationError)
+            else f"cannot be decompressed ({type(error).__name__})")
+    return f"chunk {number} (logged {logged}) {what}: its messages are skipped"
 
 
 def _starts_with_magic(stream) -> bool:

@@ -4,14 +4,14 @@ A member's checkpoint holds its slice of everything the population stacks (onlin
 moments, its replay rows and sampler count, its worlds' episode counters), the shared counters and step
 counts, its config and, for ``aia-eval``, its network as the state dict of a solo actor. Every random draw of
 the loop is counter-based, so these counters are the whole random state: a population resumes by loading each
-member's file, and a member may resume alone or inside another population.
+member's file, and a member may resume alone or inside another population. How the files are written, kept and
+verified: :mod:`aia.training.checkpoint_files`.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -24,6 +24,7 @@ from aia.training.optimizer import StackedAdam
 from aia.training.replay import MemberReplay
 
 CHECKPOINT_NAME = "checkpoints/last.pt"
+PREVIOUS_CHECKPOINT_NAME = "checkpoints/previous.pt"  # the one before: what resume=auto falls back to
 
 
 @dataclass
@@ -61,14 +62,6 @@ def member_checkpoint(parts: PopulationParts, member: int, cfg: DictConfig, stat
         "replay": parts.replay.member_state(member),
         "env_episodes": parts.world_episodes[member * worlds:(member + 1) * worlds].clone(),
     }
-
-
-def save_checkpoint(path: Path, checkpoint: dict) -> None:
-    """Write ``checkpoint`` to ``path`` atomically (never a half-written file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    torch.save(checkpoint, tmp)
-    tmp.replace(path)
 
 
 def load_member(parts: PopulationParts, member: int, checkpoint: dict) -> None:

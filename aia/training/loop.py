@@ -29,7 +29,7 @@ import gc
 import math
 import signal
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -50,13 +50,8 @@ from aia.memory import keep_freed_memory
 from aia.modules import PopulationQPolicy
 from aia.modules.q_networks import make_qvalue_actor
 from aia.timing import PhaseTimer
-from aia.training.checkpoint import (
-    CHECKPOINT_NAME,
-    PopulationParts,
-    load_member,
-    member_checkpoint,
-    save_checkpoint,
-)
+from aia.training.checkpoint import PopulationParts, load_member, member_checkpoint
+from aia.training.checkpoint_files import save_checkpoints
 from aia.training.components import (
     make_actor,
     make_logger,
@@ -64,6 +59,7 @@ from aia.training.components import (
     make_recorders,
     make_stacked_network,
 )
+from aia.training.folder_lock import folder_locks
 from aia.training.members import check_population
 from aia.training.optimizer import StackedAdam, Updater
 from aia.training.progress import progress_bar
@@ -100,31 +96,47 @@ def train(cfg: DictConfig, out_dir: Path, stop: StopOnSignals | None = None) -> 
 def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop: StopOnSignals | None = None
                      ) -> list[TrainingState]:
     """Train one member per config, member ``k`` in ``out_dirs[k]``, as one batched program; returns each
-    member's final counters (metrics go to each member's logger, closed on any exit). Once ``stop`` has seen a
-    signal, the loop ends at the end of the current episode as at the end of its budget: pending evaluations
-    played, every member's checkpoint written, the logs marked stopped."""
+    member's final counters (metrics go to each member's logger, closed on any exit). Each member's folder is
+    locked for the run (:mod:`.folder_lock`: a folder in use raises :class:`~aia.errors.FolderLocked`). Once
+    ``stop`` has seen a signal, the loop ends at the end of the current episode as at the end of its budget:
+    pending evaluations played, every member's checkpoint written, the logs marked stopped. A failed write of a
+    log or a checkpoint raises :class:`~aia.errors.WriteFailed` after every log is closed marked failed."""
     if len(cfgs) != len(out_dirs):
         raise ValueError(f"{len(cfgs)} configs for {len(out_dirs)} run folders")
     for cfg in cfgs:
         validate_train_config(cfg)
     check_population(cfgs)
     out_dirs = [Path(d) for d in out_dirs]
-    checkpoints = _checkpoints(list(cfgs), out_dirs)
-    loggers: list[Logger | None] = []
-    try:
-        loggers += [make_logger(cfg, out_dir, resumed_after_ns=checkpoint["saved_at_ns"] if checkpoint else None)
-                    for cfg, out_dir, checkpoint in zip(cfgs, out_dirs, checkpoints, strict=True)]
-        states = _train(list(cfgs), out_dirs, loggers, stop, checkpoints)
-        if stop is not None and stop.signal:
-            for logger in loggers:
-                if isinstance(logger, MCAPLogger):
-                    logger.mark_failed(f"{signal.Signals(stop.signal).name} at frame {states[0].frames}: "
-                                       "checkpoint written (resume=auto continues)", status="stopped")
+    with folder_locks(out_dirs, cfgs[0].lock_wait_s):
+        checkpoints = _checkpoints(list(cfgs), out_dirs)
+        loggers: list[Logger | None] = []
+        try:
+            loggers += [make_logger(cfg, out_dir, resumed_after_ns=checkpoint["saved_at_ns"] if checkpoint else None)
+                        for cfg, out_dir, checkpoint in zip(cfgs, out_dirs, checkpoints, strict=True)]
+            states = _train(list(cfgs), out_dirs, loggers, stop, checkpoints)
+            if stop is not None and stop.signal:
+                for logger in loggers:
+                    if isinstance(logger, MCAPLogger):
+                        logger.mark_failed(f"{signal.Signals(stop.signal).name} at frame {states[0].frames}: "
+                                           "checkpoint written (resume=auto continues)", status="stopped")
+        except BaseException:
+            _close(loggers, quiet=True)  # each log marked failed or stopped with the error under way
+            raise
+        _close(loggers, quiet=False)
         return states
-    finally:
-        for logger in loggers:
-            if logger:
+
+
+def _close(loggers: Sequence[Logger | None], quiet: bool) -> None:
+    """Close every logger; then raise the first error a close raised, unless ``quiet`` (an error is under way)."""
+    errors = []
+    for logger in loggers:
+        if logger:
+            try:
                 logger.close()
+            except Exception as err:  # noqa: BLE001  (the other logs are closed all the same)
+                errors.append(err)
+    if errors and not quiet:
+        raise errors[0]
 
 
 def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | None], stop: StopOnSignals | None,
@@ -282,7 +294,11 @@ def _description(cfgs: list[DictConfig]) -> str:
 
 def _checkpoints(cfgs: list[DictConfig], out_dirs: list[Path]) -> list[dict | None]:
     """Each member's checkpoint to resume from (:mod:`.resuming`), all from the same point, or none at all."""
-    paths = [resume_path(cfg, out_dir) for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
+    sources = [resume_path(cfg, out_dir) for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
+    for source in sources:
+        if source is not None and source.passed_over:
+            print(source.passed_over)
+    paths = [source.path if source else None for source in sources]
     if not any(paths):
         return [None] * len(cfgs)
     if not all(paths):
@@ -369,16 +385,20 @@ class _Run:
         return status
 
     def save(self, base_env, episode_step: int) -> None:
-        """Every member's checkpoint, in its own run folder. Between episodes the collector has already reset
-        the worlds into their next episode: the checkpoint counts it as not begun, so that a resumed run meets
-        the same next episode; a resumed run abandons an interrupted episode (it starts the one after)."""
+        """Every member's checkpoint, in its own run folder (all of them or none: :func:`save_checkpoints`).
+        Between episodes the collector has already reset the worlds into their next episode: the checkpoint counts
+        it as not begun, so that a resumed run meets the same next episode; a resumed run abandons an interrupted
+        episode (it starts the one after)."""
         self.parts.world_episodes.copy_(base_env._episode - (1 if episode_step == 0 else 0))
         network = self.parts.policy.network
-        for member, (cfg, out_dir) in enumerate(zip(self.cfgs, self.out_dirs, strict=True)):
-            network.unstack_into(member, self.actor_template[0].module)
-            state = replace(self.shared, eval_scores=list(self.scores[member])).__dict__
-            checkpoint = member_checkpoint(self.parts, member, cfg, state, self.actor_template.state_dict())
-            save_checkpoint(out_dir / CHECKPOINT_NAME, checkpoint)
+
+        def checkpoints() -> Iterator[tuple[Path, dict]]:  # one at a time: a member's copy is freed when written
+            for member, (cfg, out_dir) in enumerate(zip(self.cfgs, self.out_dirs, strict=True)):
+                network.unstack_into(member, self.actor_template[0].module)
+                state = replace(self.shared, eval_scores=list(self.scores[member])).__dict__
+                yield out_dir, member_checkpoint(self.parts, member, cfg, state, self.actor_template.state_dict())
+
+        save_checkpoints(checkpoints())
 
     def log_summary(self, frames_per_s: float) -> None:
         """The run's speed and where its time went, in every member's log."""

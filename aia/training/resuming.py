@@ -1,36 +1,61 @@
 """Where a run resumes from, and whether its checkpoint is one it may continue.
 
-``resume=<path>`` continues from that checkpoint; ``resume=auto`` from the newest checkpoint in the run's own
-folder if there is one, else the run starts fresh (what a requeued cluster job needs: the same command in the
-same folder). A checkpoint of a run that differs in a setting that shapes what is learned (:data:`RESUME_KEYS`:
+``resume=<path>`` continues from that checkpoint; ``resume=auto`` from the newest undamaged checkpoint in the
+run's own folder (``checkpoints/last.pt``, else ``checkpoints/previous.pt``, saying why) if there is one, else
+the run starts fresh (what a requeued cluster job needs: the same command in the same folder). A checkpoint
+whose records fail their CRC-32 check (:func:`~aia.training.checkpoint_files.checkpoint_damage`) is refused. A
+checkpoint of a run that differs in a setting that shapes what is learned (:data:`RESUME_KEYS`:
 the env, the algorithm, the network, the exploration, the seed, the worlds and the replay) is refused, naming
 every differing key with both values; budgets (``frames``), logging and compile switches may change.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
 
 from aia.errors import ConfigError
-from aia.training.checkpoint import CHECKPOINT_NAME
+from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
+from aia.training.checkpoint_files import checkpoint_damage
 from aia.training.members import flat_settings
 
 RESUME_KEYS = ("env", "algo", "exploration.name", "hidden", "seed", "collector.num_envs", "buffer_size",
                "batch_size", "gamma", "target_update_interval", "warmup_frames", "updates_per_frame")
 
 
-def resume_path(cfg: DictConfig, out_dir: Path) -> Path | None:
-    """The checkpoint this run continues from, or None for a fresh start."""
+@dataclass(frozen=True)
+class ResumeSource:
+    """The checkpoint a run continues from, and the newer one ``resume=auto`` passed over as damaged (a line
+    saying so), if any."""
+
+    path: Path
+    passed_over: str | None = None
+
+
+def resume_path(cfg: DictConfig, out_dir: Path) -> ResumeSource | None:
+    """The checkpoint this run continues from, or None for a fresh start; ``resume=auto`` with no undamaged
+    checkpoint in the folder (but a damaged one) is refused with a :class:`ConfigError`."""
     resume = cfg.get("resume")
     if resume is None:
         return None
-    if str(resume) == "auto":
-        newest = out_dir / CHECKPOINT_NAME
-        return newest if newest.is_file() else None
-    return Path(str(resume))
+    if str(resume) != "auto":
+        return ResumeSource(Path(str(resume)))
+    damaged: list[str] = []
+    for path in (out_dir / CHECKPOINT_NAME, out_dir / PREVIOUS_CHECKPOINT_NAME):
+        if not path.is_file():
+            continue
+        problem = checkpoint_damage(path)
+        if problem is None:
+            return ResumeSource(path, f"{'; '.join(damaged)}: resuming from the checkpoint before it, {path}"
+                                if damaged else None)
+        damaged.append(f"{path} is damaged: {problem}")
+    if damaged:
+        raise ConfigError("resume", "auto", f"an undamaged checkpoint in the run folder, but {'; '.join(damaged)} "
+                          f"(move {out_dir / 'checkpoints'} away to start afresh)")
+    return None
 
 
 def checkpoint_point(checkpoint: dict) -> tuple[int, int, int, int]:
@@ -44,17 +69,29 @@ def resume_point(cfg: DictConfig, out_dir: Path) -> tuple[int, int, int, int] | 
     """Where this run continues from, to group runs into populations: its checkpoint's :func:`checkpoint_point`,
     ``None`` for a fresh start, or the path of a checkpoint it cannot read (that run then fails alone, with
     :func:`load_resumable`'s line). Reads only the checkpoint's counters (its tensors are mapped, not loaded)."""
-    path = resume_path(cfg, out_dir)
-    if path is None:
-        return None
     try:
-        return checkpoint_point(torch.load(path, weights_only=False, map_location="cpu", mmap=True))
+        source = resume_path(cfg, out_dir)
+    except ConfigError:  # resume=auto and only damaged checkpoints
+        return str(out_dir / CHECKPOINT_NAME)
+    if source is None:
+        return None
+    if checkpoint_damage(source.path) is not None:
+        return str(source.path)
+    try:
+        return checkpoint_point(torch.load(source.path, weights_only=False, map_location="cpu", mmap=True))
     except Exception:  # unreadable, or not a checkpoint of aia-train
-        return str(path)
+        return str(source.path)
 
 
 def load_resumable(path: Path, cfg: DictConfig, map_location: str) -> dict:
-    """The checkpoint at ``path``, refused with one line if it is unreadable or from an incompatible run."""
+    """The checkpoint at ``path``, refused with one line if it is damaged, unreadable or from an incompatible
+    run."""
+    problem = checkpoint_damage(path)
+    if problem is not None:
+        previous = path.parent / Path(PREVIOUS_CHECKPOINT_NAME).name
+        fallback = f"resume={previous} (the one before)" if previous != path and previous.is_file() else None
+        raise ConfigError("resume", str(path), f"an undamaged checkpoint, but {problem}: continue from "
+                          f"{fallback or 'another checkpoint'} or start afresh")
     try:
         checkpoint = torch.load(path, weights_only=False, map_location=map_location)
     except Exception as err:  # torch raises several types for a missing or foreign file

@@ -90,12 +90,15 @@ def start_resource_tracker_blocking(signum: int) -> None:
 
 
 def resumed(call: Call) -> Call:
-    """``call`` with ``resume=auto`` for every member whose job folder holds a checkpoint (the others keep their
-    own ``resume``: a task stopped before its first checkpoint starts as it started the first time)."""
-    from aia.training.checkpoint import CHECKPOINT_NAME  # imported here: Hydra's plugin scan imports this module
+    """``call`` with ``resume=auto`` for every member whose job folder holds a checkpoint (``last.pt`` or
+    ``previous.pt``; the others keep their own ``resume``: a task stopped before its first checkpoint starts as it
+    started the first time)."""
+    # imported here: Hydra's plugin scan imports this module
+    from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 
     task, cfgs, out_dirs, threads = call
-    cfgs = [{**cfg, "resume": "auto"} if (Path(out_dir) / CHECKPOINT_NAME).is_file() else cfg
+    cfgs = [{**cfg, "resume": "auto"}
+            if any((Path(out_dir) / name).is_file() for name in (CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME)) else cfg
             for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
     return task, cfgs, out_dirs, threads
 

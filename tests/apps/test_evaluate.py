@@ -36,11 +36,11 @@ def test_evaluation_is_seeded_and_batched(checkpoint):
 
 
 def test_bad_checkpoints_are_named(tmp_path, checkpoint):
-    with pytest.raises(ValueError, match="does not exist"):
+    with pytest.raises(ValueError, match="missing.pt.*expected an existing checkpoint"):
         evaluate_checkpoint(tmp_path / "missing.pt", 2, 0.05, 0, "cpu")
     junk = tmp_path / "junk.pt"
     junk.write_text("not a checkpoint")
-    with pytest.raises(ValueError, match="junk.pt.*not a readable torch checkpoint"):
+    with pytest.raises(ValueError, match="junk.pt.*not a whole zip archive"):
         evaluate_checkpoint(junk, 2, 0.05, 0, "cpu")
     with pytest.raises(ValueError, match="epsilon=1.5"):
         evaluate_checkpoint(checkpoint, 2, 1.5, 0, "cpu")

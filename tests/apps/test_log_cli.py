@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import re
 import subprocess
 import sys
 
@@ -205,3 +206,24 @@ def test_summary_shows_a_failed_start(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "[failed: RuntimeError: the env could not be built]" in captured.out
     assert "failed: RuntimeError" in captured.err  # the warning of a run that is not complete
+
+
+def test_summary_reports_a_damaged_chunk_in_one_line_and_reads_around_it(tmp_path, capsys):
+    logger = MCAPLogger("exp", tmp_path, flush_interval_s=3600, compression="none")
+    logger.log_hparams({"algo": {"name": "dqn"}, "seed": 0})
+    for i in range(120):
+        logger.log_scalar("eval/score", float(i), step=i)
+        if i == 39:
+            logger.flush()
+            first_chunk_end = (tmp_path / "run.mcap").stat().st_size
+        if i % 40 == 39:
+            logger.flush()
+    logger.close()
+    data = bytearray((tmp_path / "run.mcap").read_bytes())
+    data[first_chunk_end + 500] ^= 0x01  # inside the second chunk's records: only its CRC-32 tells
+    (tmp_path / "run.mcap").write_bytes(bytes(data))
+    assert main(["summary", str(tmp_path / "run.mcap")]) == 0
+    captured = capsys.readouterr()
+    damage = r"chunk 2 \(logged [-0-9: >]+\) fails its CRC-32 check: its messages are skipped"
+    assert re.fullmatch(f"warning: {re.escape(str(tmp_path / 'run.mcap'))}: {damage}\n", captured.err)
+    assert re.search(rf"\[{damage}\]", captured.out) and re.search(r"eval/score +aia.Scalar +80\n", captured.out)

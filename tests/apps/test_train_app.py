@@ -1,4 +1,5 @@
-"""The aia-train app: parallel local sweeps (joblib), the SLURM launcher config, killed runs keep their log."""
+"""The aia-train app: parallel local sweeps (joblib), the SLURM launcher config, killed runs keep their log, a
+full disk ends a run in one line."""
 
 from __future__ import annotations
 
@@ -8,8 +9,11 @@ import sys
 import time
 
 import pytest
+import torch
 from hydra import compose, initialize_config_module
 
+import aia.training.checkpoint_files as checkpoint_files
+from aia.apps import train as train_app
 from aia.logging import read_run
 
 
@@ -66,3 +70,27 @@ def test_method_sets_algo_and_exploration(method, algo, exploration):
         cfg = compose(config_name="train", overrides=[f"method={method}", "experiment=paper_small3"])
     assert (cfg.algo.name, cfg.exploration.name, cfg.env.num_targets) == (algo, exploration, 3)
     assert cfg.method == method  # the name aia-log plot --group-by method groups by
+
+
+def test_a_full_disk_ends_the_run_in_one_line_with_its_log_and_checkpoint_intact(tmp_path, monkeypatch, capsys,
+                                                                                  full_disk):
+    """The second checkpoint's write fails (the in-process app): exit status 1, one stderr line naming the file
+    and the OS error; the log says why and keeps every evaluation; the first checkpoint stays; no temporary file,
+    no lock left."""
+    full_disk(checkpoint_files, room=20_000, after=1)
+    monkeypatch.setattr(sys, "argv", ["aia-train", f"hydra.run.dir={tmp_path}", "hydra.output_subdir=null",
+                                      "hydra/job_logging=disabled", "hydra/hydra_logging=disabled", "frames=200",
+                                      "checkpoint_every_frames=40", "env.max_steps=40", "warmup_frames=100",
+                                      "eval.episodes=2", "batch_size=16", "hidden=[32,32]",
+                                      "logger.record_every_evaluations=0"])
+    with pytest.raises(SystemExit) as info:
+        train_app.main()
+    lines = [line for line in capsys.readouterr().err.split("\n") if line and "frame/s" not in line]  # no bar
+    last = tmp_path / "checkpoints" / "last.pt"
+    assert info.value.code == 1 and len(lines) == 1
+    assert lines[0].startswith(f"aia-train: error: could not write {last} ([Errno 28] No space left on device)")
+    run = read_run(tmp_path / "run.mcap")
+    assert run.complete and run.failure == f"failed: {lines[0].removeprefix('aia-train: error: ')}"
+    assert run.scalars("eval/score").frames.tolist() == [40, 80]
+    assert torch.load(last, weights_only=False)["state"]["frames"] == 40
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["checkpoints", "last.pt", "run.mcap"]

@@ -12,7 +12,8 @@ import yaml
 from mcap.reader import make_reader
 from omegaconf import OmegaConf
 
-from aia.logging import MCAPLogger, read_run
+from aia.errors import WriteFailed
+from aia.logging import MCAPLogger, mcap_logger, read_run
 from aia.logging.metadata import flatten
 
 
@@ -170,3 +171,27 @@ def test_mark_failed_is_explicit_and_the_first_mark_stays(tmp_path):
         finally:
             logger.close()
     assert read_run(tmp_path / "run.mcap").failure == "failed: the env could not be built"
+
+
+def test_a_failed_write_cuts_the_log_back_to_its_last_flush_and_records_why(tmp_path, full_disk):
+    """Out of space: WriteFailed names the file and the OS error; the log keeps every flushed message, says
+    ``failed: <reason>``, and takes no more records."""
+    full_disk(mcap_logger, room=6_000)
+    logger = MCAPLogger("exp", tmp_path, flush_interval_s=3600, compression="none")
+    flushed = 0
+    with pytest.raises(WriteFailed) as failed:
+        try:
+            for i in range(10_000):
+                logger.log_scalar("eval/score", float(i), step=i)
+                if i % 20 == 19:
+                    logger.flush()
+                    flushed = i + 1
+        finally:
+            logger.close()
+    reason = f"could not write {tmp_path / 'run.mcap'} ([Errno 28] No space left on device)"
+    assert str(failed.value).startswith(reason) and flushed >= 20
+    with pytest.raises(WriteFailed):
+        logger.log_scalar("eval/score", 0.0, step=0)
+    run = read_run(tmp_path / "run.mcap")
+    assert run.failure.startswith(f"failed: {reason}") and not run.complete and not run.damage
+    assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(flushed)]

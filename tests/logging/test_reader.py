@@ -7,10 +7,10 @@ import pytest
 from aia.logging import MCAPLogger, RunLogError, find_runs, read_run
 
 
-def _chunked_log(path, chunks=6, per_chunk=40):
+def _chunked_log(path, chunks=6, per_chunk=40, compression="zstd"):
     """A log whose every ``per_chunk`` scalars end in a flush (one chunk each); returns the file size after
     each flush."""
-    logger = MCAPLogger("exp", path, flush_interval_s=3600)
+    logger = MCAPLogger("exp", path, flush_interval_s=3600, compression=compression)
     logger.log_hparams({"algo": {"name": "dqn"}, "seed": 1})
     sizes = []
     for chunk in range(chunks):
@@ -25,7 +25,7 @@ def _chunked_log(path, chunks=6, per_chunk=40):
 def test_complete_log(tmp_path):
     data, _ = _chunked_log(tmp_path)
     run = read_run(tmp_path / "run.mcap")
-    assert run.complete and run.problem is None and run.skipped_chunks == 0
+    assert run.complete and run.problem is None and run.damage == []
     assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(240)]
     assert run.config_value("algo") == "dqn" and run.config_value("seed") == 1
     assert run.config_value("algo.name") == "dqn" and run.config_value("nothing.here") is None
@@ -52,8 +52,32 @@ def test_a_corrupt_chunk_is_skipped_and_counted(tmp_path):
     damaged[middle:middle + 8] = bytes(8)
     (tmp_path / "bad.mcap").write_bytes(bytes(damaged))
     run = read_run(tmp_path / "bad.mcap")
-    assert run.skipped_chunks == 1
+    assert len(run.damage) == 1 and run.damage[0].startswith("chunk 3 (logged ")
     assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(240) if not 80 <= i < 120]
+
+
+@pytest.mark.parametrize("offset", [70, 400, 1000])  # bytes into the second chunk's uncompressed records
+def test_a_flipped_byte_in_a_chunk_fails_its_crc_and_is_read_around(tmp_path, offset):
+    data, sizes = _chunked_log(tmp_path, compression="none")
+    damaged = bytearray(data)
+    damaged[sizes[0] + offset] ^= 0x01  # a scalar's digit: still a well-formed record, caught by the CRC alone
+    (tmp_path / "bad.mcap").write_bytes(bytes(damaged))
+    run = read_run(tmp_path / "bad.mcap")
+    assert run.complete and len(run.damage) == 1
+    assert run.damage[0].startswith("chunk 2 (logged ") and "fails its CRC-32 check" in run.damage[0]
+    assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(240) if not 40 <= i < 80]
+
+
+def test_a_damaged_record_outside_the_chunks_fails_the_data_crc(tmp_path):
+    data, _ = _chunked_log(tmp_path)
+    damaged = bytearray(data)
+    where = data.index(b"algo.name")  # the config's metadata record, written outside the chunks
+    damaged[where] = ord("A")
+    (tmp_path / "bad.mcap").write_bytes(bytes(damaged))
+    run = read_run(tmp_path / "bad.mcap")
+    assert run.damage == ["the data section fails its CRC-32 check: a record outside the chunks (a schema, "
+                          "channel, metadata or attachment) is damaged"]
+    assert len(run.scalars("eval/score").values) == 240
 
 
 def test_files_that_are_not_logs(tmp_path):

@@ -84,7 +84,8 @@ def test_a_checkpoint_of_another_run_is_refused_naming_each_difference(tmp_path)
               tmp_path / "b")
     broken = tmp_path / "broken.pt"
     broken.write_text("not a checkpoint")
-    with pytest.raises(ConfigError, match=f"resume='{broken}': expected a readable aia-train checkpoint"):
+    with pytest.raises(ConfigError, match=f"resume='{broken}': expected an undamaged checkpoint, but it is not a "
+                                          "whole zip archive"):
         train(_config(*SMALL, "frames=200", "logger=none", f"resume={broken}"), tmp_path / "c")
 
 
