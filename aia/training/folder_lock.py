@@ -24,7 +24,7 @@ from collections.abc import Iterator, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
-from aia.errors import FolderLocked
+from aia.errors import FolderLocked, WriteFailed, os_error_text
 
 LOCK_NAME = "run.lock"
 _POLL_S = 0.5  # how often a waiting run looks at the lock again
@@ -73,28 +73,40 @@ def _take_over(lock: Path, stale: dict) -> None:
         moved.unlink()
 
 
-def _acquire(folder: Path, wait_s: float) -> dict:
-    """Hold ``folder``'s lock (waiting up to ``wait_s`` seconds for a live holder); returns the holder written."""
-    folder.mkdir(parents=True, exist_ok=True)
-    lock = folder / LOCK_NAME
-    deadline = time.monotonic() + wait_s
-    while True:
-        try:
-            descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            holder = _holder(lock)
-            if holder is not None and _gone(holder):
-                print(f"taking over {lock}: its run (pid {holder['pid']} on this host) is gone")
-                _take_over(lock, holder)
-                continue
-            if time.monotonic() < deadline:
-                time.sleep(min(_POLL_S, max(0.0, deadline - time.monotonic())))
-                continue
-            raise FolderLocked(_refusal(lock, holder, wait_s)) from None
-        me = _me()
+def _create(lock: Path) -> dict | None:
+    """Create ``lock`` naming this process (returned), or None if it exists; a failed write (a full disk, a
+    read-only folder) raises :class:`~aia.errors.WriteFailed` and leaves no lock file."""
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except FileExistsError:
+        return None
+    except OSError as err:
+        raise WriteFailed(lock, os_error_text(err)) from None
+    me = _me()
+    try:
         with os.fdopen(descriptor, "w") as file:
             json.dump(me, file)
-        return me
+    except OSError as err:
+        lock.unlink(missing_ok=True)
+        raise WriteFailed(lock, os_error_text(err)) from None
+    return me
+
+
+def _acquire(folder: Path, wait_s: float) -> dict:
+    """Hold ``folder``'s lock (waiting up to ``wait_s`` seconds for a live holder); returns the holder written."""
+    lock = folder / LOCK_NAME
+    deadline = time.monotonic() + wait_s
+    while (me := _create(lock)) is None:
+        holder = _holder(lock)
+        if holder is not None and _gone(holder):
+            print(f"taking over {lock}: its run (pid {holder['pid']} on this host) is gone")
+            _take_over(lock, holder)
+        elif time.monotonic() < deadline:
+            time.sleep(min(_POLL_S, max(0.0, deadline - time.monotonic())))
+        else:
+            raise FolderLocked(_refusal(lock, holder, wait_s))
+    return me
 
 
 def _refusal(lock: Path, holder: dict | None, wait_s: float) -> str:

@@ -4,6 +4,7 @@ waited for up to lock_wait_s; the lock goes with the run on every exit."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import socket
@@ -15,7 +16,7 @@ import time
 import pytest
 from hydra import compose, initialize_config_module
 
-from aia.errors import ConfigError, FolderLocked
+from aia.errors import ConfigError, FolderLocked, WriteFailed
 from aia.logging import read_run
 from aia.training import train
 from aia.training.folder_lock import LOCK_NAME, folder_locks
@@ -115,3 +116,14 @@ def test_every_folder_of_a_population_is_locked_and_released_on_an_error(tmp_pat
 def test_lock_wait_s_is_validated():
     with pytest.raises(ConfigError, match=r"^lock_wait_s=-1: expected a number >= 0$"):
         validate_train_config(_config("lock_wait_s=-1"))
+
+
+def test_a_lock_that_cannot_be_written_is_a_write_failure_and_leaves_no_file(tmp_path, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(json, "dump", full)
+    with pytest.raises(WriteFailed, match=f"could not write {tmp_path / LOCK_NAME} \\(\\[Errno 28\\] No space"), \
+            folder_locks([tmp_path], wait_s=0):
+        pass
+    assert not (tmp_path / LOCK_NAME).exists()
