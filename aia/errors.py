@@ -40,8 +40,8 @@ class WriteFailed(RunFailed):
         super().__init__(path, reason)  # the arguments: pickling (sweep workers) rebuilds it
 
     def __str__(self) -> str:
-        return (f"could not write {self.path} ({self.reason}): make room or fix the folder, then continue with "
-                "resume=auto (the last whole checkpoint is kept)")
+        return (f"could not write {self.path} ({self.reason}): make room or fix the folder, then run again "
+                "(aia-train: resume=auto continues from the last whole checkpoint, which is kept)")
 
 
 def os_error_text(error: OSError) -> str:
