@@ -6,6 +6,9 @@
     aia-log plot outputs/repro/learners --where env.map=empty --group-by algo --group-by exploration --x episode \\
         --window 4 --baseline outputs/repro/arvi --baseline-label ARVI --out empty1.png   # the paper's Fig. 2
     aia-log plot ... --baseline arvi --baseline-label ARVI --baseline arvi_min2 --baseline-label "ARVI, 2 m"
+    aia-log plot ... --ci bootstrap          # the IQM over runs with its stratified-bootstrap CI band (rliable)
+    aia-log stats outputs/repro/small3/learners --group-by method --baseline outputs/repro/small3/arvi_min2 \\
+        --baseline-label "ARVI 2 m" [--json]   # IQM, mean, P(improvement), verdict, first x reaching it, with CIs
     aia-log render RUN --episode last --out episode.gif        # or .png: a strip of --frames frames
 
 RUN arguments are files, folders (searched for ``*.mcap``) or globs. A run killed before it closed its log
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import sys
 from collections.abc import Sequence
 from datetime import datetime
@@ -35,6 +39,16 @@ from aia.logging.curves import (
 )
 from aia.logging.metadata import flatten
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
+from aia.logging.stats import (
+    STATISTICS,
+    VERDICT_BY,
+    StatsConfig,
+    curve_bands,
+    describe,
+    group_stats,
+    stats_json,
+    stats_table,
+)
 
 RENDER_FORMATS = (".gif", ".png")
 SUMMARY_KEYS = ("algo", "exploration", "env.map", "env.num_targets", "seed", "frames")
@@ -115,17 +129,23 @@ BASELINE_STYLES = ("--", ":", "-.")
 
 
 def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: int, x_axis: str, out: Path,
-         title: str | None = None, baselines: Sequence[Baseline] = ()) -> list:
-    """Draw the learning curves (mean line, +-1 std band) of ``runs`` grouped by ``group_by`` into ``out``,
-    with each of ``baselines`` (label, mean, std, count) as a horizontal line and band."""
+         title: str | None = None, baselines: Sequence[Baseline] = (), bootstrap: StatsConfig | None = None) -> list:
+    """Draw the learning curves (mean line, +-1 std band; with ``bootstrap``, the config's statistic and its
+    stratified-bootstrap CI band) of ``runs`` grouped by ``group_by`` into ``out``, with each of ``baselines``
+    (label, mean, std, count) as a horizontal line and band."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     curves = learning_curves(runs, metric, group_by, window, x_axis)
+    bands = curve_bands(runs, metric, group_by, window, x_axis, bootstrap) if bootstrap else []
     figure, axes = plt.subplots(figsize=(7, 4.5), dpi=120)
-    for curve in curves:
+    for band in bands:
+        line, = axes.plot(band.x, band.centre, label=f"{band.label} ({band.runs} runs, {bootstrap.statistic.upper()} "
+                                                     f"and {bootstrap.ci_level:.0%} CI)")
+        axes.fill_between(band.x, band.low, band.high, color=line.get_color(), alpha=0.2)
+    for curve in curves if not bands else ():
         line, = axes.plot(curve.x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
         axes.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, color=line.get_color(), alpha=0.2)
     for k, (label, mean, std, count) in enumerate(baselines):
@@ -167,10 +187,10 @@ def results_table(curves: Sequence, metric: str, x_axis: str, baselines: Sequenc
     return "\n".join(rows)
 
 
-def read_baselines(paths: Sequence[str], labels: Sequence[str], where: Sequence[str], metric: str
-                   ) -> list[Baseline]:
-    """The baselines of ``--baseline`` / ``--baseline-label``: with one label or none, all ``paths`` pool into
-    one baseline; with one label per path, each path is a baseline of its own."""
+def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[str], metric: str
+                  ) -> list[tuple[str, list[RunLog]]]:
+    """The baselines of ``--baseline`` / ``--baseline-label`` as (label, runs): with one label or none, all
+    ``paths`` pool into one baseline; with one label per path, each path is a baseline of its own."""
     if not paths:
         return []
     if len(labels) <= 1:
@@ -185,8 +205,15 @@ def read_baselines(paths: Sequence[str], labels: Sequence[str], where: Sequence[
         runs = _with_metric(select_runs(_read_all(group), where), metric)
         if not runs:
             raise ValueError(f"no {label} run in {group} matches --where {list(where)} and has {metric!r}")
-        baselines.append((label, *baseline_level(runs, metric)))
+        baselines.append((label, runs))
     return baselines
+
+
+def read_baselines(paths: Sequence[str], labels: Sequence[str], where: Sequence[str], metric: str
+                   ) -> list[Baseline]:
+    """The baselines of ``--baseline`` / ``--baseline-label`` (:func:`baseline_runs`) as (label, mean, std,
+    count) of their values."""
+    return [(label, *baseline_level(runs, metric)) for label, runs in baseline_runs(paths, labels, where, metric)]
 
 
 def action_view(points: np.ndarray, margin: float, limit: tuple[float, float]
@@ -290,9 +317,47 @@ def check_group_keys(runs: Sequence[RunLog], keys: Sequence[str]) -> None:
             raise ValueError(f"--group-by {key!r}: no run has this config key; available: {', '.join(available)}")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``aia-log stats: error: argument --reps: ...``), exit 2."""
+
+    def error(self, message: str) -> None:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+DEFAULTS = StatsConfig()
+
+
+def add_stats_options(cmd: argparse.ArgumentParser, verdicts: bool) -> None:
+    """The options of :class:`aia.logging.stats.StatsConfig` (their defaults are its own)."""
+    cmd.add_argument("--statistic", choices=STATISTICS, default=DEFAULTS.statistic,
+                     help=f"aggregate over runs: interquartile mean or mean (default: {DEFAULTS.statistic})")
+    cmd.add_argument("--reps", type=int, default=DEFAULTS.reps,
+                     help=f"bootstrap resamples per interval (default: {DEFAULTS.reps})")
+    cmd.add_argument("--ci-level", type=float, default=DEFAULTS.ci_level,
+                     help=f"coverage of the confidence intervals (default: {DEFAULTS.ci_level})")
+    cmd.add_argument("--seed", type=int, default=DEFAULTS.seed,
+                     help=f"seed of the bootstrap's resampling (default: {DEFAULTS.seed})")
+    if verdicts:
+        cmd.add_argument("--verdict-by", choices=VERDICT_BY, default=DEFAULTS.verdict_by,
+                         help="what a verdict against a baseline reads: the CI of the probability of improvement "
+                              f"or of the statistic's difference (default: {DEFAULTS.verdict_by})")
+        cmd.add_argument("--poi-threshold", type=float, default=DEFAULTS.poi_threshold,
+                         help="above when the probability of improvement's CI lies wholly above this, below when "
+                              f"wholly below, else undecided (default: {DEFAULTS.poi_threshold})")
+        cmd.add_argument("--difference-threshold", type=float, default=DEFAULTS.difference_threshold,
+                         help="the same for the CI of statistic(group) - statistic(baseline) under --verdict-by "
+                              f"difference (default: {DEFAULTS.difference_threshold})")
+
+
+def stats_config(args: argparse.Namespace) -> StatsConfig:
+    """The :class:`StatsConfig` of the parsed options (ValueError naming a bad value)."""
+    names = ("statistic", "reps", "ci_level", "seed", "verdict_by", "poi_threshold", "difference_threshold")
+    return StatsConfig(**{name: getattr(args, name) for name in names if hasattr(args, name)})
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The ``aia-log`` argument parser."""
-    parser = argparse.ArgumentParser(prog="aia-log", description=__doc__.split("\n\n")[0],
+    parser = OneLineParser(prog="aia-log", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=__doc__.split("\n\n")[1])
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -326,6 +391,31 @@ def make_parser() -> argparse.ArgumentParser:
                           "higher otherwise)")
     cmd.add_argument("--title", help="figure title (default: the metric)")
     cmd.add_argument("--out", type=Path, default=Path("curves.png"), help="PNG to write (default: curves.png)")
+    cmd.add_argument("--ci", choices=("std", "bootstrap"), default="std",
+                     help="the band: +-1 std around the mean (default), or the --statistic over runs with its "
+                          "pointwise stratified-bootstrap CI (rliable)")
+    add_stats_options(cmd, verdicts=False)
+
+    cmd = commands.add_parser("stats", help="per group: IQM and mean of the runs' final levels with bootstrap CIs; "
+                                            "against --baseline: P(improvement), difference, verdict (rliable)")
+    cmd.add_argument("runs", nargs="+", help=runs_help)
+    cmd.add_argument("--metric", default="eval/score", help="scalar topic (default: eval/score)")
+    cmd.add_argument("--group-by", action="append", default=[], metavar="KEY",
+                     help="config key to group runs by, e.g. method or algo (repeatable)")
+    cmd.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
+                     help="keep only runs (and baseline runs) whose config has this value (repeatable)")
+    cmd.add_argument("--baseline", action="append", default=[], metavar="RUNS",
+                     help="runs to compare every group with, e.g. aia-eval policy=arvi logs")
+    cmd.add_argument("--baseline-label", action="append", default=[], metavar="LABEL",
+                     help="the baseline's name; one per --baseline compares with several baselines")
+    cmd.add_argument("--window", type=int, default=1,
+                     help="moving-average window of the curves that first-reaching reads (default: 1; paper: 4)")
+    cmd.add_argument("--x", dest="x_axis", choices=X_AXES, default="frame",
+                     help="unit of first-reaching: training frames (default), training episodes or evaluation index")
+    cmd.add_argument("--better", choices=("higher", "lower"),
+                     help="which way the metric improves, for first-reaching (default: lower for *error* or *loss*)")
+    add_stats_options(cmd, verdicts=True)
+    cmd.add_argument("--json", action="store_true", help="print the statistics as JSON instead of a table")
 
     cmd = commands.add_parser("render", help="a recorded episode as a GIF or a PNG strip of frames")
     cmd.add_argument("run", help="one MCAP file")
@@ -362,18 +452,37 @@ def run_command(args: argparse.Namespace) -> None:
             raise ValueError(f"--window={args.window} must be >= 1")
         if args.out.suffix.lower() != ".png":
             raise ValueError(f"--out {args.out}: plot writes a .png file")
+        bootstrap = stats_config(args) if args.ci == "bootstrap" else None
         runs = _with_metric(select_runs(_read_all(args.runs), args.where), args.metric)
         if not runs:
             raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
         check_group_keys(runs, args.group_by)
         baselines = read_baselines(args.baseline, args.baseline_label, args.where, args.metric)
-        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baselines)
+        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baselines,
+                      bootstrap)
         for curve in curves:
             print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "
                   f"+- {curve.std[-1]:.1f}")
         lower_better = lower_is_better(args.metric) if args.better is None else args.better == "lower"
         print(results_table(curves, args.metric, args.x_axis, baselines, lower_better))
         print(f"plot written to {args.out}")
+    elif args.command == "stats":
+        config = stats_config(args)
+        if args.window < 1:
+            raise ValueError(f"--window={args.window} must be >= 1")
+        runs = _with_metric(select_runs(_read_all(args.runs), args.where), args.metric)
+        if not runs:
+            raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
+        check_group_keys(runs, args.group_by)
+        baselines = baseline_runs(args.baseline, args.baseline_label, args.where, args.metric)
+        lower_better = lower_is_better(args.metric) if args.better is None else args.better == "lower"
+        groups, bases = group_stats(runs, args.metric, args.group_by, baselines, config, args.window, args.x_axis,
+                                    lower_better)
+        if args.json:
+            print(json.dumps(stats_json(groups, bases, args.metric, config), indent=2))
+        else:
+            print(describe(args.metric, config))
+            print(stats_table(groups, bases, args.metric, config, X_LABELS[args.x_axis], lower_better))
     elif args.command == "render":
         width, height = render(read_run(args.run), args.episode, args.out, args.size, args.frames, args.fps,
                                zoom=not args.whole_map)
@@ -383,7 +492,10 @@ def run_command(args: argparse.Namespace) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``aia-log``; returns the exit status (2 with a one-line message on bad input)."""
     parser = make_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as stop:  # --help (0), or a bad option: its one line is printed (2)
+        return int(stop.code or 0)
     try:
         run_command(args)
     except (RunLogError, ValueError, OSError) as err:

@@ -318,6 +318,32 @@ def group_stats(runs: Sequence[RunLog], metric: str, group_by: Sequence[str] = (
     return results, baseline_stats
 
 
+@dataclass
+class Band:
+    """A group's learning curve as the statistic over its runs at each evaluation index, with its pointwise
+    interval (up to the shortest run's length)."""
+
+    label: str
+    runs: int
+    x: np.ndarray
+    centre: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+
+
+def curve_bands(runs: Sequence[RunLog], metric: str, group_by: Sequence[str] = (), window: int = 1,
+                x_axis: str = "frame", config: StatsConfig | None = None) -> list[Band]:
+    """Per group of ``runs``: the statistic of the smoothed curves at each evaluation index and its
+    stratified-bootstrap interval (``aia-log plot --ci bootstrap``)."""
+    config = config or StatsConfig()
+    bands = []
+    for label, members in group_runs(runs, group_by).items():
+        check_runs(label, len(members), config)
+        x, curves = curves_of(members, metric, window, x_axis)
+        bands.append(Band(label, len(members), x, *curve_band(curves, config)))
+    return bands
+
+
 # --- output -------------------------------------------------------------------------------------------------
 
 def stats_table(groups: Sequence[GroupStats], baselines: Sequence[GroupStats], metric: str, config: StatsConfig,

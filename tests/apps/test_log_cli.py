@@ -1,8 +1,9 @@
-"""aia-log: summary, scalars, plot and render on small logs written here."""
+"""aia-log: summary, scalars, plot, stats and render on small logs written here."""
 
 from __future__ import annotations
 
 import csv
+import json
 import re
 import subprocess
 import sys
@@ -227,3 +228,83 @@ def test_summary_reports_a_damaged_chunk_in_one_line_and_reads_around_it(tmp_pat
     damage = r"chunk 2 \(logged [-0-9: >]+\) fails its CRC-32 check: its messages are skipped"
     assert re.fullmatch(f"warning: {re.escape(str(tmp_path / 'run.mcap'))}: {damage}\n", captured.err)
     assert re.search(rf"\[{damage}\]", captured.out) and re.search(r"eval/score +aia.Scalar +80\n", captured.out)
+
+
+def _stats_runs(root):
+    """Two learners (5 seeds each, 10 evaluations) and a baseline of 4 runs, seeded."""
+    rng = np.random.default_rng(0)
+    for algo, level in (("adfq", 1500.0), ("dqn", 700.0)):
+        for seed in range(5):
+            _fake_run(root / f"m/{algo}{seed}", algo, seed, (level * (1 - np.exp(-np.arange(1, 11) / 3))
+                                                             + rng.normal(0, 100, 10)).round(1).tolist())
+    for seed in range(4):
+        _fake_run(root / f"arvi/{seed}", "arvi", seed, [float(1000 + 50 * seed)])
+
+
+def test_stats_equals_rliable_called_directly(tmp_path, capsys):
+    from rliable import library, metrics
+
+    _stats_runs(tmp_path)
+    arguments = ["stats", str(tmp_path / "m"), "--group-by", "algo", "--baseline", str(tmp_path / "arvi"),
+                 "--baseline-label", "ARVI", "--reps", "200", "--seed", "3"]
+    assert main([*arguments, "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    groups = {g["group"]: g for g in printed["groups"]}
+    assert list(groups) == ["algo=adfq", "algo=dqn"] and printed["baselines"][0]["runs"] == 4
+    baseline = np.array(printed["baselines"][0]["levels"])[:, None]
+    assert baseline[:, 0].tolist() == [1000.0, 1050.0, 1100.0, 1150.0]
+    for label, group in groups.items():
+        levels = np.array(group["levels"])[:, None]  # 10 evaluations: a level is the last one
+        np.random.seed(3)
+        points, cis = library.get_interval_estimates(
+            {label: levels}, lambda s: np.array([metrics.aggregate_iqm(s), metrics.aggregate_mean(s)]), reps=200)
+        assert group["iqm"]["estimate"] == pytest.approx(points[label][0], rel=1e-12)
+        assert group["iqm"]["ci"] == pytest.approx(cis[label][:, 0].tolist(), rel=1e-12)
+        assert group["mean"]["ci"] == pytest.approx(cis[label][:, 1].tolist(), rel=1e-12)
+        np.random.seed(3)
+        points, cis = library.get_interval_estimates(
+            {label: [levels, baseline]}, lambda x, y: np.array([metrics.probability_of_improvement(x, y)]), reps=200)
+        comparison = group["comparisons"][0]
+        assert comparison["probability_of_improvement"]["estimate"] == pytest.approx(points[label][0], rel=1e-12)
+        assert comparison["probability_of_improvement"]["ci"] == pytest.approx(cis[label][:, 0].tolist(), rel=1e-12)
+    assert groups["algo=adfq"]["comparisons"][0]["verdict"] == "above"
+    assert groups["algo=dqn"]["comparisons"][0]["verdict"] == "below"
+    assert groups["algo=dqn"]["comparisons"][0]["first_reaching"] == {"estimate": None, "ci": [None, None]}
+    # the table: the same numbers, and the verdicts
+    assert main([*arguments, "--x", "evaluation"]) == 0
+    table = capsys.readouterr().out
+    assert "95% stratified-bootstrap CIs (rliable, 200 resamples, seed 3)" in table
+    assert "| P(above ARVI) [95% CI] | IQM - ARVI [95% CI] | vs ARVI | evaluation to reach ARVI [95% CI] |" in table
+    adfq = groups["algo=adfq"]
+    assert f"| algo=adfq | 5 | {adfq['iqm']['estimate']:.1f} [{adfq['iqm']['ci'][0]:.1f}, " in table
+    assert "| above |" in table and "| below | never [never, never] |" in table
+
+
+def test_stats_refuses_a_bad_group_key_too_few_runs_and_bad_options_in_one_line(tmp_path, capsys):
+    _stats_runs(tmp_path)
+    runs = str(tmp_path / "m")
+    for arguments, message in (
+            (["--group-by", "algoo"], "--group-by 'algoo': no run has this config key; available: algo, algo.name"),
+            (["--group-by", "seed"], "'seed=0' has 2 runs: --statistic iqm needs at least 4 (iqm needs 4, mean "
+                                     "needs 2)"),
+            (["--baseline", str(tmp_path / "arvi/0")], "'baseline' has 1 run: --statistic iqm needs at least 4"),
+            (["--statistic", "median"], "argument --statistic: invalid choice: 'median' (choose from 'iqm', 'mean')"),
+            (["--verdict-by", "ci"], "invalid choice: 'ci' (choose from 'poi', 'difference')"),
+            (["--ci-level", "95"], "--ci-level 95.0: expected a number in (0, 1), e.g. 0.95"),
+            (["--reps", "x"], "argument --reps: invalid int value: 'x'")):
+        assert main(["stats", runs, *arguments]) == 2, arguments
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and err.startswith("aia-log"), err
+    # with the mean, 2 runs per group are enough
+    assert main(["stats", runs, "--group-by", "seed", "--statistic", "mean", "--reps", "50"]) == 0
+    assert "| seed=0 | 2 |" in capsys.readouterr().out
+
+
+def test_plot_with_bootstrap_bands(tmp_path, capsys):
+    _stats_runs(tmp_path)
+    out = tmp_path / "ci.png"
+    assert main(["plot", str(tmp_path / "m"), "--group-by", "algo", "--ci", "bootstrap", "--reps", "100",
+                 "--out", str(out)]) == 0
+    assert "algo=adfq: 5 runs" in capsys.readouterr().out and Image.open(out).format == "PNG"
+    assert main(["plot", str(tmp_path / "m"), "--group-by", "seed", "--ci", "bootstrap", "--out", str(out)]) == 2
+    assert "'seed=0' has 2 runs: --statistic iqm needs at least 4" in capsys.readouterr().err
