@@ -83,7 +83,8 @@ class SensorConfig:
 class BeliefConfig:
     """Per-target belief filter (SPEC 5; aia.envs.filters)."""
 
-    # "kf" (SPEC 5's extended Kalman filter; double_integrator model only) or "ukf" (unscented).
+    # "kf" (SPEC 5's extended Kalman filter; double_integrator model only), "ukf" (unscented) or "particle"
+    # (bootstrap particle filter, aia.envs.filters.particle).
     filter: str = "kf"
     # The motion model the filter assumes (aia.envs.belief_models): "double_integrator", "se2" or
     # "se2_velocity"; None: the true targets' own (se2_sine -> se2, se2_constant -> se2_velocity).
@@ -92,6 +93,11 @@ class BeliefConfig:
     control: str = "zero"
     # ukf: Julier's sigma-point spread kappa (ttenv: 1).
     ukf_kappa: float = 1.0
+    # particle: particles per target; resampled (systematic) below resample_threshold * particles effective
+    # particles, then roughened by roughening * spread * particles^(-1/d) per entry.
+    particles: int = 256
+    resample_threshold: float = 0.5
+    roughening: float = 0.2
     # Process noise the filter assumes; None: the targets' true q.
     q: Optional[float] = None
     init_cov: float = 30.0
@@ -175,12 +181,13 @@ _CHOICES = {
     "reward.obstacle_form": ("2019", "paper"),
     "dtype": ("float32", "float64"),
 }
-_POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "target.init_candidates")
+_POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "target.init_candidates",
+                      "belief.particles")
 _POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing",
              "belief.init_cov", "target.sine_step", "belief.ukf_kappa")
 _NON_NEGATIVE = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin", "belief.init_offset",
                  "reward.obstacle_margin", "reward.collision_penalty", "target.turn_on_collision", "target.detour_margin",
-                 "belief.init_offset_angle")
+                 "belief.init_offset_angle", "belief.roughening")
 _NUMBERS = ("target.reflect_gain", "target.sine_frequency", "target.sine_amplitude", "target.detour_speed", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
 _POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit", "target.angular_speed_limit")
 # The filter's model when belief.model is null: the true targets' own.
@@ -216,6 +223,7 @@ def validate(cfg: TrackingConfig) -> None:
         check_number(f"env.{name}", _get(cfg, name), gt=0, optional=True)
     check_number("env.belief.q", cfg.belief.q, ge=0, optional=True)
     check_number("env.sensor.fov_deg", cfg.sensor.fov_deg, gt=0, le=360)
+    check_number("env.belief.resample_threshold", cfg.belief.resample_threshold, gt=0, le=1)
     for name in ("target.init_distance", "belief.init_distance"):
         distance = list(_get(cfg, name))
         require(len(distance) == 2 and all(isinstance(d, (int, float)) for d in distance)

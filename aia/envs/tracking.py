@@ -27,7 +27,7 @@ from aia.envs import belief, rng
 from aia.envs.belief_models import belief_model
 from aia.envs.config import TrackingConfig, belief_model_name
 from aia.envs.dynamics import motion_primitives, se2_step
-from aia.envs.filters import FILTERS, BeliefFilter, UnscentedKalmanFilter
+from aia.envs.filters import FILTERS, BeliefFilter
 from aia.envs.maps import load_map
 from aia.envs.sensing import MapGeometry, map_geometry
 from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, SineTargets, TargetModel
@@ -376,8 +376,11 @@ def make_filter(config: TrackingConfig, meas_noise: Tensor, map_size: Tensor) ->
     model = belief_model(belief_model_name(config), config.dt, q, b.control, meas_noise.device, meas_noise.dtype)
     options = dict(log_det_cap=math.log(b.det_cap) if b.det_cap is not None else math.inf, map_size=map_size,
                    clip_to_map=b.clip_to_map, speed_clip=b.speed_clip)
-    if FILTERS[b.filter] is UnscentedKalmanFilter:
+    if b.filter == "ukf":
         options["kappa"] = b.ukf_kappa
+    if b.filter == "particle":
+        options.update(num_targets=config.num_targets, particles=b.particles,
+                       resample_threshold=b.resample_threshold, roughening=b.roughening)
     return FILTERS[b.filter](model, meas_noise, **options)
 
 

@@ -1,9 +1,10 @@
 """Belief filters (``env.belief.filter``) behind one interface, :class:`BeliefFilter`."""
 
-from aia.envs.filters.base import BeliefFilter
+from aia.envs.filters.base import BeliefFilter, GaussianFilter
 from aia.envs.filters.kalman import KalmanFilter
+from aia.envs.filters.particle import ParticleFilter
 from aia.envs.filters.unscented import UnscentedKalmanFilter
 
-FILTERS = {"kf": KalmanFilter, "ukf": UnscentedKalmanFilter}
+FILTERS = {"kf": KalmanFilter, "ukf": UnscentedKalmanFilter, "particle": ParticleFilter}
 
-__all__ = ["FILTERS", "BeliefFilter", "KalmanFilter", "UnscentedKalmanFilter"]
+__all__ = ["FILTERS", "BeliefFilter", "GaussianFilter", "KalmanFilter", "ParticleFilter", "UnscentedKalmanFilter"]

@@ -1,4 +1,5 @@
-"""The one interface the env calls to keep its beliefs: :class:`BeliefFilter`.
+"""The one interface the env calls to keep its beliefs: :class:`BeliefFilter` (and :class:`GaussianFilter`,
+the filters whose whole belief is a mean and a covariance: ``kf`` and ``ukf``).
 
 A filter keeps, per world and target, a belief whose Gaussian summary ``belief_mean [B, N, d]`` and
 ``belief_cov [B, N, d, d]`` the features, the reward and the score read (through its log det); a filter may
@@ -72,10 +73,37 @@ class BeliefFilter(ABC):
         cov = (init_cov * eye).expand(*mean.shape[:-1], self.dim, self.dim).clone()
         return {"belief_mean": self.clip(mean), "belief_cov": cov}
 
+    @abstractmethod
     def step(self, state: dict[str, Tensor], measurement: Tensor, observed: Tensor, pose: Tensor, key: Tensor,
              step: Tensor) -> dict[str, Tensor]:
         """Predict every belief, then update the ``observed [B, N]`` ones with ``measurement [B, N, 2]`` taken
-        from ``pose [B, 3]`` (SPEC 5 order). ``key`` and ``step`` (``[B]``) key the filter's random draws."""
+        from ``pose [B, 3]`` (SPEC 5 order). ``key`` and ``step`` (``[B]``) key the filter's random draws.
+        Returns every key of :meth:`specs`."""
+
+    def clip(self, mean: Tensor) -> Tensor:
+        """2019 code: means clipped into the map and their velocity entries to +-speed_clip; headings wrapped."""
+        if self.clip_to_map:
+            position = torch.minimum(mean[..., :2].clamp_min(0.0), self.map_size)
+            mean = torch.cat((position, mean[..., 2:]), -1)
+        if self.speed_clip is not None:
+            first = 2 if self.model.name == "double_integrator" else 3
+            speeds = mean[..., first:first + 2 if first == 2 else first + 1]
+            mean = torch.cat((mean[..., :first], speeds.clamp(-self.speed_clip, self.speed_clip),
+                              mean[..., first + speeds.shape[-1]:]), -1)
+        if self.model.angle is not None:
+            a = self.model.angle
+            mean = torch.cat((mean[..., :a], wrap_angle(mean[..., a:a + 1]), mean[..., a + 1:]), -1)
+        return mean
+
+
+class GaussianFilter(BeliefFilter):
+    """A filter whose whole belief is a mean and a covariance: a step is :meth:`predict`, the det cap and the
+    clipping, then :meth:`update` of the observed targets."""
+
+    def step(self, state: dict[str, Tensor], measurement: Tensor, observed: Tensor, pose: Tensor, key: Tensor,
+             step: Tensor) -> dict[str, Tensor]:
+        """Predict every belief, then update the ``observed [B, N]`` ones with ``measurement [B, N, 2]`` taken
+        from ``pose [B, 3]`` (SPEC 5 order)."""
         prior_cov = state["belief_cov"]
         mean, cov = self.predict(state["belief_mean"], prior_cov, key, step)
         cov = belief.cap_det(prior_cov, cov, self.log_det_cap)
@@ -92,18 +120,3 @@ class BeliefFilter(ABC):
     @abstractmethod
     def update(self, mean: Tensor, cov: Tensor, measurement: Tensor, pose: Tensor) -> tuple[Tensor, Tensor]:
         """The updated ``(mean, cov)`` of every belief as if all were observed (the caller keeps the others)."""
-
-    def clip(self, mean: Tensor) -> Tensor:
-        """2019 code: means clipped into the map and their velocity entries to +-speed_clip; headings wrapped."""
-        if self.clip_to_map:
-            position = torch.minimum(mean[..., :2].clamp_min(0.0), self.map_size)
-            mean = torch.cat((position, mean[..., 2:]), -1)
-        if self.speed_clip is not None:
-            first = 2 if self.model.name == "double_integrator" else 3
-            speeds = mean[..., first:first + 2 if first == 2 else first + 1]
-            mean = torch.cat((mean[..., :first], speeds.clamp(-self.speed_clip, self.speed_clip),
-                              mean[..., first + speeds.shape[-1]:]), -1)
-        if self.model.angle is not None:
-            a = self.model.angle
-            mean = torch.cat((mean[..., :a], wrap_angle(mean[..., a:a + 1]), mean[..., a + 1:]), -1)
-        return mean

@@ -5,10 +5,10 @@ from __future__ import annotations
 from torch import Tensor
 
 from aia.envs import belief
-from aia.envs.filters.base import BeliefFilter
+from aia.envs.filters.base import GaussianFilter
 
 
-class KalmanFilter(BeliefFilter):
+class KalmanFilter(GaussianFilter):
     """Linear prediction ``A mu, A Sigma A^T + W`` and the EKF range-bearing update (:mod:`aia.envs.belief`,
     the covariance step ARVI plans with). Needs a linear model (``double_integrator``)."""
 

@@ -19,10 +19,10 @@ from torch import Tensor
 from aia.envs import belief, rng
 from aia.envs.belief_models import BeliefModel
 from aia.envs.dynamics import wrap_angle
-from aia.envs.filters.base import CONTROL_STREAM, BeliefFilter
+from aia.envs.filters.base import CONTROL_STREAM, GaussianFilter
 
 
-class UnscentedKalmanFilter(BeliefFilter):
+class UnscentedKalmanFilter(GaussianFilter):
     """The UKF over any :class:`~aia.envs.belief_models.BeliefModel`; ``kappa`` scales the sigma points."""
 
     def __init__(self, model: BeliefModel, meas_noise: Tensor, kappa: float = 1.0, **kwargs) -> None:
