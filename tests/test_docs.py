@@ -49,8 +49,9 @@ EXCLUDED = [
     (r"^aia-eval ", "evaluates a checkpoint or plans for seconds to minutes: tests/apps/test_evaluate.py runs "
                     "the app on tiny configs"),
     (r"^aia-rollout( |$)", "rolls out 64-256 worlds of 100-150 steps: tests/apps/test_rollout.py"),
-    (r"^aia-log (plot|render|scalars '|<command>)", "needs a sweep's logs, draws figures, or is a placeholder: "
-                                                    "tests/apps/test_log_cli.py covers each command"),
+    (r"^aia-log (plot|render|stats|scalars '|<command>)", "needs a sweep's logs, draws figures, or is a "
+                                                          "placeholder: tests/apps/test_log_cli.py covers each "
+                                                          "command"),
     (r"^python -m aia\.timing$", "measures the matmul rate for seconds: tests/test_timing.py"),
     (r"^python benchmarks/", "a benchmark runs for minutes; its figures are in benchmarks/results/"),
 ]
