@@ -36,7 +36,8 @@ class RobotConfig:
 class TargetConfig:
     """The true targets (SPEC 3; the models of aia.envs.targets)."""
 
-    # "double_integrator" (SPEC 3), "se2_sine" (ttenv v2) or "se2_constant" (ttenv v3).
+    # "double_integrator" (SPEC 3), "evasive" (a double integrator that flees the robot), "se2_sine" (ttenv v2)
+    # or "se2_constant" (ttenv v3).
     model: str = "double_integrator"
     # double_integrator: process noise; se2_constant: the noise of its speeds' random walk.
     q: float = 0.01
@@ -61,6 +62,10 @@ class TargetConfig:
     detour_margin: float = 3.5
     # The speed at which the push turns 3/4 of a half turn from the obstacle's direction.
     detour_speed: float = 1.75
+    # evasive: while the robot is within flee_range (None: the sensor's range) the target accelerates at
+    # flee_accel (m/s^2) straight away from it.
+    flee_range: Optional[float] = None
+    flee_accel: float = 1.0
     # Initial distance from the robot, uniform in [min, max] at a uniform angle (2019 code: exactly 8 m).
     init_distance: list[float] = field(default_factory=lambda: [0.0, 8.0])
     # Collision-free placements are drawn from this many candidates before falling back to a free cell.
@@ -187,11 +192,13 @@ _POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "se
              "belief.init_cov", "target.sine_step", "belief.ukf_kappa")
 _NON_NEGATIVE = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin", "belief.init_offset",
                  "reward.obstacle_margin", "reward.collision_penalty", "target.turn_on_collision", "target.detour_margin",
-                 "belief.init_offset_angle", "belief.roughening")
+                 "belief.init_offset_angle", "belief.roughening", "target.flee_accel")
 _NUMBERS = ("target.reflect_gain", "target.sine_frequency", "target.sine_amplitude", "target.detour_speed", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
-_POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit", "target.angular_speed_limit")
+_POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit", "target.angular_speed_limit",
+                     "target.flee_range")
 # The filter's model when belief.model is null: the true targets' own.
-DEFAULT_BELIEF_MODEL = {"double_integrator": "double_integrator", "se2_sine": "se2", "se2_constant": "se2_velocity"}
+DEFAULT_BELIEF_MODEL = {"double_integrator": "double_integrator", "evasive": "double_integrator", "se2_sine": "se2",
+                        "se2_constant": "se2_velocity"}
 
 
 def _get(cfg: TrackingConfig, dotted: str):

@@ -12,6 +12,10 @@ targets in free space: a move into collision keeps the position.
   pi/2`` (away from the obstacle's side); and every step the velocity gains ``dt * a (cos, sin)(beta -+ rot)``
   with ``a = max(0, |v| cos beta) / max(floor, d - detour_margin)``, ``rot = pi/2 (1 + sigmoid(|v| -
   detour_speed))``: a push away from what the target is heading into.
+* ``evasive`` ``[x, y, vx, vy]`` (new): the double integrator driven, while the robot is within ``flee_range``
+  of it, by an acceleration of ``flee_accel`` straight away from the robot, held over the step: ``x' = A x +
+  [dt^2/2 I; dt I] a + w``; then the collision rule and the speed limit as above. Out of that range it is
+  the plain double integrator.
 * ``se2_sine`` ``[x, y, theta, v, w, ox, oy, otheta]`` (ttenv v2's ``SinePolicy``): the target follows the
   curve ``y = b sin(a x)`` of a frame at ``(ox, oy, otheta)``, steering each step to the curve's point
   ``x_step`` further on: ``w = wrap(theta* - theta) / dt``, ``v = |p* - p| / dt``, clipped to the speed limits,
@@ -35,7 +39,7 @@ from aia.envs import belief
 from aia.envs.dynamics import double_integrator, se2_step, wrap_angle
 from aia.envs.sensing import MapGeometry
 
-TARGET_MODELS = ("double_integrator", "se2_sine", "se2_constant")
+TARGET_MODELS = ("double_integrator", "evasive", "se2_sine", "se2_constant")
 
 
 class TargetModel(ABC):
@@ -53,8 +57,9 @@ class TargetModel(ABC):
         """``[B, N, dim]`` the state at an episode's start at ``xy [B, N, 2]`` facing ``heading [B, N]``."""
 
     @abstractmethod
-    def step(self, state: Tensor, normals: Tensor) -> Tensor:
-        """The next ``state [B, N, dim]``, from ``normals [B, N, self.normals]`` standard normals."""
+    def step(self, state: Tensor, normals: Tensor, robot_pose: Tensor) -> Tensor:
+        """The next ``state [B, N, dim]``, from ``normals [B, N, self.normals]`` standard normals; the
+        robot's ``pose [B, 3]`` after its move is there for the models that react to it."""
 
 
 class DoubleIntegratorTargets(TargetModel):
@@ -78,9 +83,10 @@ class DoubleIntegratorTargets(TargetModel):
     def initial(self, xy: Tensor, heading: Tensor) -> Tensor:
         return torch.cat((xy, torch.zeros_like(xy)), -1)
 
-    def step(self, state: Tensor, normals: Tensor) -> Tensor:
+    def step(self, state: Tensor, normals: Tensor, robot_pose: Tensor) -> Tensor:
         moved = belief.bmm(state.unsqueeze(-2), self.transition.mT).squeeze(-2)
         moved = moved + belief.bmm(normals[..., :4].unsqueeze(-2), self.noise_chol.mT).squeeze(-2)
+        moved = self._accelerate(moved, state, robot_pose)
         bounced = self.geometry.in_collision(moved[..., :2])
         if self.collision_rule == "reflect":
             bounce_velocity = self.reflect_gain * moved[..., 2:] + self.reflect_noise_std * normals[..., 4:6]
@@ -95,6 +101,10 @@ class DoubleIntegratorTargets(TargetModel):
             moved = torch.cat((moved[..., :2], moved[..., 2:] * scale), -1)
         return moved
 
+
+    def _accelerate(self, moved: Tensor, state: Tensor, robot_pose: Tensor) -> Tensor:
+        """The move with the step's own acceleration added (none: the plain double integrator)."""
+        return moved
 
     def _detour(self, state: Tensor, normals: Tensor) -> tuple[Tensor, Tensor]:
         """ttenv v1's ``(velocity after a collision, the step's push)`` from the current ``state``."""
@@ -115,6 +125,20 @@ class DoubleIntegratorTargets(TargetModel):
         return after_collision, push
 
 
+class EvasiveTargets(DoubleIntegratorTargets):
+    """Double-integrator targets that flee the robot within ``flee_range`` (see the module docstring)."""
+
+    def __init__(self, *args, flee_range: float, flee_accel: float, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.flee_range, self.flee_accel = flee_range, flee_accel
+
+    def _accelerate(self, moved: Tensor, state: Tensor, robot_pose: Tensor) -> Tensor:
+        away = state[..., :2] - robot_pose[:, None, :2]
+        distance = torch.linalg.vector_norm(away, dim=-1, keepdim=True)
+        accel = torch.where(distance <= self.flee_range, self.flee_accel * away / distance.clamp_min(1e-9), 0.0)
+        return moved + torch.cat((0.5 * self.dt**2 * accel, self.dt * accel), -1)
+
+
 class SineTargets(TargetModel):
     """ttenv v2's sine-following SE(2) targets (see the module docstring)."""
 
@@ -130,7 +154,7 @@ class SineTargets(TargetModel):
         pose = torch.cat((xy, heading.unsqueeze(-1)), -1)
         return torch.cat((pose, torch.zeros_like(xy), pose), -1)
 
-    def step(self, state: Tensor, normals: Tensor) -> Tensor:
+    def step(self, state: Tensor, normals: Tensor, robot_pose: Tensor) -> Tensor:
         pose, origin, frame = state[..., :3], state[..., 5:7], state[..., 7]
         cos, sin = torch.cos(frame), torch.sin(frame)
         rel = pose[..., :2] - origin
@@ -170,7 +194,7 @@ class ConstantSpeedTargets(TargetModel):
     def initial(self, xy: Tensor, heading: Tensor) -> Tensor:
         return torch.cat((xy, heading.unsqueeze(-1), torch.zeros_like(xy)), -1)
 
-    def step(self, state: Tensor, normals: Tensor) -> Tensor:
+    def step(self, state: Tensor, normals: Tensor, robot_pose: Tensor) -> Tensor:
         pose = state[..., :3]
         control = state[..., 3:] + belief.bmm(normals.unsqueeze(-2), self.noise_chol.mT).squeeze(-2)
         control = torch.maximum(torch.minimum(control, self.limit), -self.limit)

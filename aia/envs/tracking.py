@@ -30,7 +30,7 @@ from aia.envs.dynamics import motion_primitives, se2_step
 from aia.envs.filters import FILTERS, BeliefFilter
 from aia.envs.maps import load_map
 from aia.envs.sensing import MapGeometry, map_geometry
-from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, SineTargets, TargetModel
+from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, EvasiveTargets, SineTargets, TargetModel
 
 # Stream identifiers: draws for different purposes never share random bits (the filters' start at 11).
 _STEP_STREAM = 1
@@ -337,7 +337,7 @@ class TargetTrackingEnv(EnvBase):
             blocked = blocked | (spread < cfg.robot.target_margin**2)
         pose = torch.cat((torch.where(blocked[:, None], pose[:, :2], proposal[:, :2]), proposal[:, 2:]), -1)
 
-        targets = self.targets.step(targets, noise[..., :-2])
+        targets = self.targets.step(targets, noise[..., :-2], pose)
 
         # Sensor: range, field of view and line of sight to the true targets.
         observed, polar = geom.in_view(pose, targets[..., :2])
@@ -358,9 +358,15 @@ class TargetTrackingEnv(EnvBase):
 def make_targets(config: TrackingConfig, geometry: MapGeometry) -> TargetModel:
     """The true targets' model of a setting (``env.target.model``)."""
     t, dt = config.target, config.dt
-    if t.model == "double_integrator":
+    if t.model in ("double_integrator", "evasive"):
+        options = dict(collision_rule=t.collision_rule, detour_margin=t.detour_margin, detour_speed=t.detour_speed,
+                       detour_floor=max(config.margin, 1e-6))
+        if t.model == "evasive":
+            flee_range = config.sensor.range if t.flee_range is None else t.flee_range
+            return EvasiveTargets(geometry, dt, t.q, t.reflect_gain, t.reflect_noise_std, t.speed_limit,
+                                  flee_range=flee_range, flee_accel=t.flee_accel, **options)
         return DoubleIntegratorTargets(geometry, dt, t.q, t.reflect_gain, t.reflect_noise_std, t.speed_limit,
-                                       t.collision_rule, t.detour_margin, t.detour_speed, max(config.margin, 1e-6))
+                                       **options)
     v_max = math.inf if t.speed_limit is None else t.speed_limit
     w_max = math.inf if t.angular_speed_limit is None else t.angular_speed_limit
     if t.model == "se2_sine":

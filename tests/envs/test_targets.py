@@ -10,7 +10,9 @@ import torch
 from aia.envs import make_env
 from aia.envs.dynamics import se2_step
 from aia.envs.sensing import map_geometry
-from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, SineTargets
+from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, EvasiveTargets, SineTargets
+
+ROBOT = torch.tensor([[1.0, 1.0, 0.0]], dtype=torch.float64)   # far from every target below
 
 
 def _geometry(name="obstacles4"):
@@ -41,7 +43,7 @@ def test_sine_policy_follows_its_curve_by_hand():
                         angular_speed_limit=math.pi, turn=math.pi / 4)
     start = torch.tensor([[[50.0, 50.0, 0.0]]], dtype=torch.float64)
     state = model.initial(start[..., :2], start[..., 2])
-    state = model.step(state, torch.zeros(1, 1, 1, dtype=torch.float64))
+    state = model.step(state, torch.zeros(1, 1, 1, dtype=torch.float64), ROBOT)
     # the frame is the start pose: the next curve point is (0.1, 5 sin(0.05)), its heading atan(2.5 cos(0.05))
     goal = torch.tensor([50.1, 50.0 + 5.0 * math.sin(0.05)], dtype=torch.float64)
     v = float(torch.linalg.vector_norm(goal - start[0, 0, :2])) / dt
@@ -59,13 +61,13 @@ def test_constant_speed_target_mirrors_its_turn_at_an_obstacle():
     # 0.5 m from the east wall's margin, heading north-east, turning left: the move collides, the mirrored
     # turn (to the right) collides as well, so the target stays and turns around
     state = torch.tensor([[[26.0, 13.5, math.pi / 4, 2.0, 0.5]]], dtype=torch.float64)
-    nxt = model.step(state, torch.zeros(1, 1, 2, dtype=torch.float64))
+    nxt = model.step(state, torch.zeros(1, 1, 2, dtype=torch.float64), ROBOT)
     assert torch.allclose(nxt[0, 0, :2], state[0, 0, :2])
     assert math.isclose(float(nxt[0, 0, 2]), math.pi / 4 - math.pi, abs_tol=1e-12)
     assert torch.allclose(nxt[0, 0, 3:], torch.tensor([2.0, -0.5], dtype=torch.float64))
     # heading along the wall, turning into it: the mirrored turn is free and taken
     state = torch.tensor([[[26.4, 13.5, math.pi / 2, 2.0, -0.6]]], dtype=torch.float64)
-    nxt = model.step(state, torch.zeros(1, 1, 2, dtype=torch.float64))
+    nxt = model.step(state, torch.zeros(1, 1, 2, dtype=torch.float64), ROBOT)
     mirrored = se2_step(state[0, 0, :3], torch.tensor([2.0, 0.6], dtype=torch.float64), 0.5)
     assert torch.allclose(nxt[0, 0, :3], mirrored) and not geometry.in_collision(mirrored[:2])
 
@@ -77,7 +79,7 @@ def test_detour_targets_leave_an_obstacle_they_run_into_and_are_pushed_away_by_h
     # heading east at 2 m/s, 0.8 m from the east wall's margin (x = 26.5): the move collides
     state = torch.tensor([[[25.7, 13.5, 2.0, 0.0]]], dtype=torch.float64)
     normals = torch.tensor([[[0, 0, 0, 0, 0.3, 0.0]]], dtype=torch.float64)  # speed + 0.3, U = 1/2
-    nxt = model.step(state, normals)
+    nxt = model.step(state, normals, ROBOT)
     assert torch.allclose(nxt[0, 0, :2], state[0, 0, :2])
     # the wall is straight ahead (bearing 0 >= 0): leave at 0 - 1.5 pi/2 from the heading, at 2.3 m/s
     leave = 2.3 * torch.tensor([math.cos(-0.75 * math.pi), math.sin(-0.75 * math.pi)], dtype=torch.float64)
@@ -88,7 +90,7 @@ def test_detour_targets_leave_an_obstacle_they_run_into_and_are_pushed_away_by_h
     # moving away from the nearest wall (behind it): no push, the plain double integrator
     far = torch.tensor([[[25.0, 13.5, -1.0, 0.0]]], dtype=torch.float64)
     moved = torch.tensor([[[24.5, 13.5, -1.0, 0.0]]], dtype=torch.float64)
-    assert torch.allclose(model.step(far, torch.zeros(1, 1, 6, dtype=torch.float64)), moved)
+    assert torch.allclose(model.step(far, torch.zeros(1, 1, 6, dtype=torch.float64), ROBOT), moved)
 
 
 def test_nearest_obstacle_by_hand():
@@ -101,3 +103,21 @@ def test_nearest_obstacle_by_hand():
     centre = (occupied.flip(0).double() + 0.5) * geometry.resolution
     distance, _ = geometry.nearest_obstacle(centre[None])
     assert float(distance[0]) < 1e-9
+
+
+def test_evasive_targets_flee_the_robot_within_range_by_hand():
+    geometry = _geometry("empty_small")
+    model = EvasiveTargets(geometry, 0.5, 0.0, -0.4, 0.2, 2.0, flee_range=10.0, flee_accel=1.0)
+    state = torch.tensor([[[13.5, 13.5, 0.0, 0.5], [13.5, 13.5, 0.0, 0.5]]], dtype=torch.float64)
+    robot = torch.tensor([[10.5, 9.5, 0.0]], dtype=torch.float64)         # 5 m away, along (3, 4) / 5
+    nxt = model.step(state, torch.zeros(1, 2, 6, dtype=torch.float64), robot)
+    accel = torch.tensor([0.6, 0.8], dtype=torch.float64)
+    expected = torch.cat((state[0, 0, :2] + 0.5 * state[0, 0, 2:] + 0.125 * accel, state[0, 0, 2:] + 0.5 * accel))
+    assert torch.allclose(nxt[0, 0], expected)
+    away = (nxt[0, 0, :2] - robot[0, :2]).norm() - (state[0, 0, :2] - robot[0, :2]).norm()
+    assert away > 0
+    # out of range it is the plain double integrator, and its speed stays within the limit
+    far = model.step(state, torch.zeros(1, 2, 6, dtype=torch.float64), ROBOT)
+    assert torch.allclose(far[0, 0], torch.tensor([13.5, 13.75, 0.0, 0.5], dtype=torch.float64))
+    fast = torch.tensor([[[13.5, 13.5, 1.9, 0.0]]], dtype=torch.float64)
+    assert float(model.step(fast, torch.zeros(1, 1, 6, dtype=torch.float64), robot)[0, 0, 2:].norm()) <= 2.0 + 1e-12
