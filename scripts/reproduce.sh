@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Reproduce the paper's comparison (SPEC 11): for each setting, DQN, Double DQN, ADFQ-egreedy and ADFQ-TS with
-# 5 seeds each, ARVI with 10 seeds, then the Fig. 2 curves, a results table and a Fig. 3-style trajectory
+# 5 seeds each, ARVI with 10 seeds, then the Fig. 2 curves, a results table, the statistics and verdicts of
+# aia-log stats ($FIGURES/<setting>_stats.md, from 4 seeds per learner on) and a Fig. 3-style trajectory
 # picture of a learned ADFQ-TS policy. Everything is logged to MCAP under $OUT; each phase prints its wall time
 # and appends it to $OUT/wall_time.tsv, and the machine's float32 matmul rate at the start and at the end goes to
 # $OUT/machine.tsv (GFLOP/s, python3 -m aia.timing): a shared VM's speed swings, and wall times compare only
@@ -178,6 +179,14 @@ figures() {
   # shellcheck disable=SC2086  # WHERE holds several words on purpose
   aia-log plot "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration --x episode \
     --window 4 "${baselines[@]}" --title "$setting" --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
+  # the verdicts (docs/RESULTS.md, "How verdicts are decided"): IQM and mean with bootstrap CIs, and per baseline
+  # the probability of improvement, the difference, the verdict and the episode reaching it; at least 4 seeds
+  # shellcheck disable=SC2086
+  if ! aia-log stats "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration \
+      --x episode --window 4 "${baselines[@]}" > "$FIGURES/${setting}_stats.md"; then
+    rm -f "$FIGURES/${setting}_stats.md"
+    echo "no statistics for $setting: the line above says why"
+  fi
   config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
   if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; return; fi
   run=$(dirname "$(dirname "$config")")

@@ -142,8 +142,9 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     bands = curve_bands(runs, metric, group_by, window, x_axis, bootstrap) if bootstrap else []
     figure, axes = plt.subplots(figsize=(7, 4.5), dpi=120)
     for band in bands:
-        line, = axes.plot(band.x, band.centre, label=f"{band.label} ({band.runs} runs, {bootstrap.statistic.upper()} "
-                                                     f"and {bootstrap.ci_level:.0%} CI)")
+        statistic = "IQM" if bootstrap.statistic == "iqm" else bootstrap.statistic
+        line, = axes.plot(band.x, band.centre,
+                          label=f"{band.label} ({band.runs} runs, {statistic} and {bootstrap.ci_level:.0%} CI)")
         axes.fill_between(band.x, band.low, band.high, color=line.get_color(), alpha=0.2)
     for curve in curves if not bands else ():
         line, = axes.plot(curve.x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")

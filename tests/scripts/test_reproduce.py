@@ -46,6 +46,9 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
     table = (figures / "small2.md").read_text()
     assert "| algo=adfq, exploration=thompson | 1 |" in table and "| algo=adfq, exploration=egreedy | 1 |" in table
     assert "training episodes to reach ARVI, min range 2 m" in table
+    # one seed per learner: aia-log stats refuses (the IQM needs 4 runs), and the script goes on
+    assert "'algo=adfq, exploration=egreedy' has 1 run: --statistic iqm needs at least 4" in result.stdout
+    assert "no statistics for small2" in result.stdout and not (figures / "small2_stats.md").exists()
     with Image.open(figures / "empty1_trajectory.png") as strip:
         assert strip.size == (5 * 320, 320)  # 5 frames of 320 pixels
     with Image.open(figures / "small2.png") as curves:
