@@ -155,6 +155,9 @@ class TargetTrackingGymEnv(gymnasium.Env):
             fov_deg=self.config.sensor.fov_deg,
             size=self.render_size,
             observed=state["observed"][0],
+            target_heading=None if self.base_env.targets.heading is None
+            else state["target_state"][0, :, self.base_env.targets.heading],
+            particles=state["belief_particles"][0] if "belief_particles" in state.keys() else None,
         )
 
     # -------------------------------------------------------------- helpers

@@ -30,6 +30,7 @@ FOV_ALPHA = 70
 TARGET_COLOUR = (220, 30, 30)
 OBSERVED_COLOUR = (255, 150, 0)
 BELIEF_COLOUR = (0, 160, 0)
+PARTICLE_COLOUR = (140, 210, 140)
 
 # Vertices of each 2-sigma ellipse polygon.
 _ELLIPSE_POINTS = 72
@@ -51,6 +52,8 @@ def render_frame(
     robot_path: np.ndarray | None = None,
     target_paths: np.ndarray | None = None,
     view: tuple[float, float, float, float] | None = None,
+    target_heading: torch.Tensor | np.ndarray | None = None,
+    particles: torch.Tensor | np.ndarray | None = None,
 ) -> np.ndarray:
     """An RGB frame ``uint8 [size, size, 3]`` of one world.
 
@@ -68,6 +71,8 @@ def render_frame(
         target_paths: optional ``[K, N, 2]`` earlier true target positions, drawn as small red dots.
         view: optional ``(x0, y0, x1, y1)`` in metres: draw only this rectangle (centred, aspect kept),
             e.g. to zoom on the action in a large map; default: the whole map.
+        target_heading: optional ``[N]`` headings of SE(2) targets, each drawn as a short line from the target.
+        particles: optional ``[N, K, >= 2]`` particle-filter particles, drawn as small dots under the ellipses.
     """
     size = int(size)
     if size < 16:
@@ -133,6 +138,13 @@ def render_frame(
         if path is not None:
             for x, y in to_pixels(np.asarray(path, dtype=np.float64).reshape(-1, 2)).tolist():
                 draw.ellipse([x - trail, y - trail, x + trail, y + trail], fill=colour)
+    if particles is not None:
+        cloud = _as_numpy(particles, "particles")
+        if cloud.ndim != 3 or cloud.shape[0] != num_targets or cloud.shape[2] < 2:
+            raise ValueError(f"particles must be [N={num_targets}, K, d], got shape {list(cloud.shape)}")
+        speck = max(1.0, dot / 4)
+        for x, y in to_pixels(cloud[..., :2].reshape(-1, 2)).tolist():
+            draw.ellipse([x - speck, y - speck, x + speck, y + speck], fill=PARTICLE_COLOUR)
     for polygon in _ellipse_polygons(means[:, :2], covs[:, :2, :2], to_pixels):
         draw.polygon([tuple(p) for p in polygon.tolist()], outline=BELIEF_COLOUR, width=line)
     for x, y in to_pixels(means[:, :2]).tolist():
@@ -143,6 +155,13 @@ def render_frame(
             ring = dot + 2 * line + 1
             draw.ellipse([x - ring, y - ring, x + ring, y + ring], outline=OBSERVED_COLOUR, width=line + 1)
         draw.ellipse([x - dot, y - dot, x + dot, y + dot], fill=TARGET_COLOUR)
+    if target_heading is not None:
+        headings = _as_numpy(target_heading, "target_heading").reshape(-1)
+        if headings.shape != (num_targets,):
+            raise ValueError(f"target_heading must be [N={num_targets}], got shape {list(headings.shape)}")
+        tips = target_px + 3 * dot * np.stack((np.cos(headings), -np.sin(headings)), -1)  # image y points down
+        for (x, y), (u, v) in zip(target_px.tolist(), tips.tolist(), strict=True):
+            draw.line([x, y, u, v], fill=TARGET_COLOUR, width=line + 1)
 
     triangle = _robot_triangle(centre, float(pose[2]), size)
     draw.polygon([tuple(p) for p in triangle.tolist()], fill=ROBOT_COLOUR)

@@ -43,10 +43,12 @@ TARGET_MODELS = ("double_integrator", "evasive", "se2_sine", "se2_constant")
 
 
 class TargetModel(ABC):
-    """The true targets' motion: ``dim`` state entries, ``normals`` draws per target and step."""
+    """The true targets' motion: ``dim`` state entries, ``normals`` draws per target and step, and which
+    entry is the heading (``heading``: None when the state has none)."""
 
     dim: int
     normals: int
+    heading: int | None = None
 
     def __init__(self, geometry: MapGeometry, dt: float) -> None:
         self.geometry = geometry
@@ -142,7 +144,7 @@ class EvasiveTargets(DoubleIntegratorTargets):
 class SineTargets(TargetModel):
     """ttenv v2's sine-following SE(2) targets (see the module docstring)."""
 
-    dim, normals = 8, 1
+    dim, normals, heading = 8, 1, 2
 
     def __init__(self, geometry: MapGeometry, dt: float, step_length: float, frequency: float, amplitude: float,
                  speed_limit: float, angular_speed_limit: float, turn: float) -> None:
@@ -181,7 +183,7 @@ class SineTargets(TargetModel):
 class ConstantSpeedTargets(TargetModel):
     """ttenv v3's SE(2) targets with noisy constant speeds (see the module docstring)."""
 
-    dim, normals = 5, 2
+    dim, normals, heading = 5, 2, 2
 
     def __init__(self, geometry: MapGeometry, dt: float, q: float, speed_limit: float,
                  angular_speed_limit: float) -> None:

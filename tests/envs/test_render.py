@@ -14,6 +14,7 @@ from aia.envs.render import (
     FREE_COLOUR,
     OBSERVED_COLOUR,
     OCCUPIED_COLOUR,
+    PARTICLE_COLOUR,
     PAD_COLOUR,
     ROBOT_COLOUR,
     TARGET_COLOUR,
@@ -205,3 +206,20 @@ def test_view_zooms_on_a_rectangle_of_the_map():
     assert tuple(frame[100, 100]) == TARGET_COLOUR
     with pytest.raises(ValueError, match=r"view=\(5.0, 0.0, 5.0, 1.0\)"):
         render_frame(grid, pose, target, mean, cov, 5.0, 90.0, size=200, view=(5.0, 0.0, 5.0, 1.0))
+
+
+def test_particles_and_se2_headings_are_drawn():
+    grid = load_map("empty_small")
+    pose = np.array([3.0, 3.0, 0.0])
+    target = np.array([[20.0, 20.0, math.pi / 2, 1.0, 0.0]])       # an SE(2) target facing north
+    mean, cov = np.array([[20.0, 20.0, 0.0]]), np.eye(3)[None] * 0.01
+    particles = np.array([[[10.0, 10.0, 0.0], [5.0, 20.0, 0.0]]])   # pixels (100, 170) and (50, 70)
+    plain = render_frame(grid, pose, target, mean, cov, 5.0, 90.0, size=270)
+    drawn = render_frame(grid, pose, target, mean, cov, 5.0, 90.0, size=270, target_heading=target[:, 2],
+                         particles=particles)
+    assert tuple(drawn[170, 100]) == PARTICLE_COLOUR and tuple(plain[170, 100]) == FREE_COLOUR
+    assert tuple(drawn[70, 50]) == PARTICLE_COLOUR
+    # the heading line runs north of the target's dot (pixel (200, 70)) for 3 dots: 0.5 m above it is (200, 65)
+    assert tuple(drawn[65, 200]) == TARGET_COLOUR and tuple(plain[65, 200]) == FREE_COLOUR
+    with pytest.raises(ValueError, match="particles must be"):
+        render_frame(grid, pose, target, mean, cov, 5.0, 90.0, particles=particles[0])
