@@ -6,18 +6,26 @@ batched step. Each case runs in a fresh process, as a user's run would (in one l
 code of earlier envs adds guard checks to later ones). Prints a table and writes JSON (default
 ``benchmarks/results/env_throughput_<device>.json``).
 
+A case is a preset, optionally with env overrides after a colon (``small2:belief.filter=particle``).
+``--filters`` measures one case per belief filter (kf, the UKF over 3 and 5 states, the particle filter with
+256 and 1,024 particles); ``--baseline REV`` measures every case again with the code of commit ``REV`` in the
+same run (the cases that commit cannot build are left out), so a change's cost is a ratio within one run.
+
     python benchmarks/env_throughput.py                     # CPU, B in {1, 16, 256, 4096}, the four settings
     python benchmarks/env_throughput.py --device cuda --batch-sizes 1 1024 16384 65536
+    python benchmarks/env_throughput.py --filters --batch-sizes 1 4096 --baseline 54a9a5a
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -27,13 +35,19 @@ from aia.envs import make_env
 from aia.timing import synchronize
 
 SETTINGS = ("empty1", "obstacles1", "small2", "small3")
+# One case per belief filter: kf, the UKF over [x, y, theta] and [x, y, theta, v, w], particles K = 256, 1024.
+FILTER_CASES = ("empty1", "ttenv_v2", "ttenv_v3", "ttenv_v2:belief.filter=particle,belief.particles=256",
+                "ttenv_v2:belief.filter=particle,belief.particles=1024")
+HERE = Path(__file__).resolve().parent
 
 
 def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int, compile: bool,
             repeats: int = 5) -> dict:
     """Median over ``repeats`` windows of ``steps`` batched steps of random actions (auto-reset at the
     episode end, like a collector), after ``warmup`` steps (which include compilation)."""
-    env = make_env(setting, batch_size=batch_size, device=device, seed=0, validate_actions=False, compile=compile)
+    name, _, overrides = setting.partition(":")
+    env = make_env(name, batch_size=batch_size, device=device, seed=0, validate_actions=False, compile=compile,
+                   overrides=[o for o in overrides.split(",") if o])
     num_actions = env.action_spec.n
     td = env.reset()
     actions = torch.randint(0, num_actions, (warmup + repeats * steps, batch_size), device=device)
@@ -68,10 +82,10 @@ def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int,
 
 def markdown_table(rows: list[dict]) -> str:
     """Frames/s per setting and batch size, eager and compiled side by side (for the README)."""
-    cells = {(r["setting"], r["batch_size"], r["mode"]): r for r in rows}
+    cells = {(r["setting"], r["batch_size"], _column(r)): r for r in rows}
     settings = list(dict.fromkeys(r["setting"] for r in rows))
     sizes = sorted({r["batch_size"] for r in rows})
-    modes = list(dict.fromkeys(r["mode"] for r in rows))
+    modes = list(dict.fromkeys(_column(r) for r in rows))
     lines = ["| setting | B | " + " | ".join(f"{m} frames/s (ms/step)" for m in modes) + " |",
              "|---|---:|" + "---:|" * len(modes)]
     for setting in settings:
@@ -84,6 +98,20 @@ def markdown_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _column(row: dict) -> str:
+    """A table column: the mode, and the code's commit when it is a baseline's."""
+    return row["mode"] if row.get("code", "now") == "now" else f"{row['mode']} @ {row['code']}"
+
+
+def run_case(case: dict, env: dict | None = None) -> dict | None:
+    """One case in a fresh process (with ``env`` added to its environment); None when it fails."""
+    done = subprocess.run([sys.executable, str(HERE / "env_throughput.py"), "--single", json.dumps(case)],
+                          capture_output=True, text=True, env=os.environ | (env or {}), cwd=env and env["PYTHONPATH"])
+    if done.returncode != 0:
+        return None
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
@@ -94,6 +122,8 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=20)
     parser.add_argument("--modes", nargs="+", choices=("eager", "compiled"), default=["eager", "compiled"],
                         help="eager steps, and steps through torch.compile (make_env(compile=True))")
+    parser.add_argument("--filters", action="store_true", help="one case per belief filter (FILTER_CASES)")
+    parser.add_argument("--baseline", default=None, help="git commit whose code measures every case again")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--single", default=None, help=argparse.SUPPRESS)  # one case, JSON in and out
     args = parser.parse_args()
@@ -102,20 +132,34 @@ def main() -> None:
         print(json.dumps(measure(**case)))
         return
 
+    settings = list(FILTER_CASES) if args.filters else args.settings
     rows = []
-    print(f"{'setting':<12}{'mode':<10}{'B':>7}{'frames/s':>14}{'ms/step':>10}")
-    for setting in args.settings:
-        for mode in args.modes:
-            for batch_size in args.batch_sizes:
-                case = dict(setting=setting, batch_size=batch_size, device=args.device, steps=args.steps,
-                            warmup=args.warmup, compile=mode == "compiled", repeats=args.repeats)
-                done = subprocess.run([sys.executable, __file__, "--single", json.dumps(case)],
-                                      capture_output=True, text=True, check=True)
-                row = json.loads(done.stdout.strip().splitlines()[-1])
-                row["mode"] = mode
-                rows.append(row)
-                print(f"{setting:<12}{mode:<10}{batch_size:>7}{row['frames_per_s']:>14,.0f}{row['ms_per_step']:>10.3f}",
-                      flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        codes = {"now": None}
+        if args.baseline:
+            old = Path(tmp) / "old"
+            old.mkdir()
+            archive = subprocess.run(["git", "archive", args.baseline], cwd=HERE.parent, capture_output=True,
+                                     check=True)
+            subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
+            (old / "aia" / "conf").symlink_to(old / "conf")  # the old code's configs, as its install maps them
+            codes[args.baseline] = {"PYTHONPATH": str(old)}
+        print(f"{'setting':<40}{'mode':<10}{'code':<10}{'B':>7}{'frames/s':>14}{'ms/step':>10}")
+        for setting in settings:
+            for mode in args.modes:
+                for batch_size in args.batch_sizes:
+                    for code, env in codes.items():  # the baseline right beside the case it compares with
+                        case = dict(setting=setting, batch_size=batch_size, device=args.device, steps=args.steps,
+                                    warmup=args.warmup, compile=mode == "compiled", repeats=args.repeats)
+                        row = run_case(case, env)
+                        if row is None:
+                            if code == "now":
+                                raise SystemExit(f"{setting} ({mode}, B={batch_size}) failed: rerun it alone")
+                            continue
+                        row |= {"mode": mode, "code": code}
+                        rows.append(row)
+                        print(f"{setting:<40}{mode:<10}{code:<10}{batch_size:>7}{row['frames_per_s']:>14,.0f}"
+                              f"{row['ms_per_step']:>10.3f}", flush=True)
 
     out = args.out or Path(__file__).parent / "results" / f"env_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
