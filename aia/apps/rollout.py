@@ -1,7 +1,7 @@
 """``aia-rollout``: score scripted policies (random, belief pursuit) on a batch of tracking worlds.
 
-Runs one episode in each of ``num_worlds`` worlds per policy, prints the score (SPEC 9) and the shaped
-return, and writes ``rollout.json`` in the Hydra run directory. ``aia-rollout --help`` lists the config.
+Runs one episode in each of ``num_worlds`` worlds per policy, prints the score (SPEC 9), the shaped
+return and the belief error (mean distance from the belief means to the true targets), and writes ``rollout.json`` in the Hydra run directory. ``aia-rollout --help`` lists the config.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from tqdm import tqdm
 from aia.apps.hydra_app import hydra_app
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.evaluation import episode_scores, run_episodes
+from aia.evaluation import belief_errors, episode_scores, run_episodes
 from aia.policies import BeliefPursuitPolicy, RandomPolicy
 from aia.validation import ROLLOUT_POLICIES, validate_rollout_config
 
@@ -54,6 +54,7 @@ def score_policy(cfg: DictConfig, name: str) -> dict:
         "score_mean": scores.mean().item(),
         "score_std": scores.std(correction=0).item(),
         "return_mean": returns.mean().item(),
+        "belief_error": belief_errors(rollout).mean().item(),
         "observed_fraction": rollout.get(("next", "observed")).float().mean().item(),
         "collision_fraction": rollout.get(("next", "collision")).float().mean().item(),
         "frames_per_s": steps * cfg.num_worlds / seconds,
@@ -69,10 +70,10 @@ def main(cfg: DictConfig) -> None:
     print(f"setting {choice}: map {cfg.env.map}, {cfg.env.num_targets} target(s), {cfg.env.max_steps} steps, "
           f"{cfg.num_worlds} worlds, seed {cfg.seed}")
     results = [score_policy(cfg, name) for name in cfg.policies]
-    print(f"{'policy':<10}{'score mean':>12}{'std':>9}{'return':>10}{'observed':>10}{'frames/s':>11}")
+    print(f"{'policy':<10}{'score mean':>12}{'std':>9}{'return':>10}{'error m':>9}{'observed':>10}{'frames/s':>11}")
     for r in results:
         print(f"{r['policy']:<10}{r['score_mean']:>12.1f}{r['score_std']:>9.1f}{r['return_mean']:>10.1f}"
-              f"{r['observed_fraction']:>10.2f}{r['frames_per_s']:>11,.0f}")
+              f"{r['belief_error']:>9.2f}{r['observed_fraction']:>10.2f}{r['frames_per_s']:>11,.0f}")
     log = out_dir / "rollout.json"
     log.write_text(json.dumps({"config": OmegaConf.to_container(cfg, resolve=True), "setting": choice,
                                "results": results}, indent=2))

@@ -22,5 +22,5 @@ def test_rollout_app_writes_its_log(tmp_path):
     assert [r["policy"] for r in log["results"]] == ["random", "pursuit"]
     assert log["setting"] == "small2" and log["config"]["env"]["num_targets"] == 2
     for r in log["results"]:
-        assert r["episodes"] == 4 and r["score_std"] >= 0
-        assert r["policy"] in result.stdout
+        assert r["episodes"] == 4 and r["score_std"] >= 0 and r["belief_error"] > 0
+        assert r["policy"] in result.stdout and f"{r['belief_error']:.2f}" in result.stdout
