@@ -1,0 +1,89 @@
+"""Print the comparison table of run_ttenv.py's and run_aia.py's records (any python with numpy)::
+
+    python scripts/ttenv_compare/compare.py /tmp/ttenv_compare/*.json > table.md
+
+Records pair up by (version, policy, map; ttenv's obstacles02 is aia's obstacles4); runs of one side with the
+same key (other seeds) pool their episodes. Each cell is the mean
+over episodes with its standard error, ttenv then aia, and z = (aia - ttenv) / sqrt(se_ttenv^2 + se_aia^2);
+|z| >= 3 is flagged with `!` (for the observed rate the
+standard errors come from the pooled rate). Episodes where ttenv raised are left out from the step they raised on.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+
+from common import EPISODE_KEYS, STEP_KEYS
+
+STEPS = (0, 1, 10, 50, 100)  # t = 0: after the reset (ttenv has observed and updated, aia has not)
+ROWS = (("logdet", "log det Sigma (b_t|t)"), ("logdet_feat", "log det Sigma (features)"),
+        ("observed", "observed"), ("dist_rt", "|robot - target|"), ("belief_err", "|mean - target|"),
+        ("target_speed", "target speed"), ("collisions", "robot collisions so far"),
+        ("robot_travel", "|robot - robot start|"), ("target_from_start", "|target - robot start|"))
+MAPS = {"obstacles02": "obstacles4"}
+
+
+def stat(values) -> tuple[float, float, int]:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return np.nan, np.nan, 0
+    return v.mean(), v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else np.nan, len(v)
+
+
+def cell(a, b, binary: bool = False) -> str:
+    (ma, sa, na), (mb, sb, nb) = a, b
+    if binary and na and nb:  # a 0/1 mean: standard errors from the pooled rate (a side with no hit has se 0)
+        pooled = (ma * na + mb * nb) / (na + nb)
+        sa, sb = (np.sqrt(pooled * (1 - pooled) / n) for n in (na, nb))
+    scale = max(np.hypot(sa, sb), 1e-6 * (1 + abs(ma) + abs(mb)))  # no z of 1e8 between two constants
+    z = (mb - ma) / scale
+    flag = "!" if abs(z) >= 3 else ""
+    return f"{ma:.3g}±{sa:.2g} / {mb:.3g}±{sb:.2g} ({z:+.1f}{flag})"
+
+
+def table(t: dict, a: dict) -> str:
+    extra = f" (aia with {', '.join(a['overrides'])})" if a.get("overrides") else ""
+    lines = [f"### v{t['version']} {t['policy']} on {t['map']}{extra}: ttenv {t['episodes']} episodes"
+             f" / aia {a['episodes']}; ttenv raised in {int(np.isfinite(np.array(t['crash_step'], dtype=float)).sum())}"
+             f" {t.get('errors') or ''}", "",
+             "| quantity | " + " | ".join(f"t = {s}" for s in STEPS) + " |", "|---" * (len(STEPS) + 1) + "|"]
+    for key, name in ROWS:
+        if key not in t or key not in a:  # records written before these rows existed
+            continue
+        ta, aa = np.array(t[key], dtype=float), np.array(a[key], dtype=float)
+        lines.append(f"| {name} | " + " | ".join(cell(stat(ta[:, s]), stat(aa[:, s]), key == "observed")
+                                                 for s in STEPS) + " |")
+    for key, name in (("init_rb", "initial |robot - belief|"), ("init_bt", "initial |belief - target|")):
+        lines.append(f"| {name} | {cell(stat(t[key]), stat(a[key]))} |" + " |" * (len(STEPS) - 1))
+    return "\n".join(lines)
+
+
+def main() -> None:
+    runs = [json.load(open(path)) for path in sys.argv[1:]]
+    key = lambda r: (r["version"], r["policy"], MAPS.get(r["map"], r["map"]))  # noqa: E731
+    ttenv, aia = {}, {}
+    for r in runs:  # runs of the same side and key (other seeds) pool their episodes
+        side = ttenv if r["side"] == "ttenv" else aia
+        if key(r) in side:
+            pooled = side[key(r)]
+            for k in STEP_KEYS + EPISODE_KEYS:
+                if k in pooled and k in r:
+                    pooled[k] = pooled[k] + r[k]
+                else:
+                    pooled.pop(k, None)
+            pooled["episodes"] += r["episodes"]
+            for name, n in r.get("errors", {}).items():
+                pooled["errors"][name] = pooled["errors"].get(name, 0) + n
+        else:
+            side[key(r)] = r
+    print("cells: ttenv mean±se / aia mean±se (z); ! marks |z| >= 3\n")
+    for k in sorted(ttenv.keys() & aia.keys(), key=lambda k: (k[0], k[2], ("stay", "spin", "straight", "random").index(k[1]))):
+        print(table(ttenv[k], aia[k]) + "\n")
+
+
+if __name__ == "__main__":
+    main()
