@@ -19,10 +19,10 @@ import numpy as np
 from common import EPISODE_KEYS, STEP_KEYS
 
 STEPS = (0, 1, 10, 50, 100)  # t = 0: after the reset (ttenv has observed and updated, aia has not)
-ROWS = (("logdet", "log det Sigma (b_t|t)"), ("logdet_feat", "log det Sigma (features)"),
-        ("observed", "observed"), ("dist_rt", "|robot - target|"), ("belief_err", "|mean - target|"),
+ROWS = (("logdet", "log det Sigma, updated b(t given t)"), ("logdet_feat", "log det Sigma, what features read"),
+        ("observed", "observed"), ("dist_rt", "robot-target distance"), ("belief_err", "belief error (mean-target)"),
         ("target_speed", "target speed"), ("collisions", "robot collisions so far"),
-        ("robot_travel", "|robot - robot start|"), ("target_from_start", "|target - robot start|"))
+        ("robot_travel", "robot travel from its start"), ("target_from_start", "target distance from robot start"))
 MAPS = {"obstacles02": "obstacles4"}
 
 
@@ -57,7 +57,7 @@ def table(t: dict, a: dict) -> str:
         ta, aa = np.array(t[key], dtype=float), np.array(a[key], dtype=float)
         lines.append(f"| {name} | " + " | ".join(cell(stat(ta[:, s]), stat(aa[:, s]), key == "observed")
                                                  for s in STEPS) + " |")
-    for key, name in (("init_rb", "initial |robot - belief|"), ("init_bt", "initial |belief - target|")):
+    for key, name in (("init_rb", "initial robot-belief distance"), ("init_bt", "initial belief-target distance")):
         lines.append(f"| {name} | {cell(stat(t[key]), stat(a[key]))} |" + " |" * (len(STEPS) - 1))
     return "\n".join(lines)
 
