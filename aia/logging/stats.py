@@ -186,11 +186,28 @@ def _seeded(seed: int) -> Iterator[None]:
         np.random.set_state(state)
 
 
+def rliable_modules():
+    """``(rliable.library, rliable.metrics)``, imported on first use.
+
+    rliable imports ``absl.logging``, whose handler keeps the ``sys.stderr`` of its import and closes it when
+    ``logging`` shuts its handlers down (as Hydra's logging setup does): in a process that swaps ``sys.stderr``
+    (pytest's capture, a notebook) that closes someone else's stream. The handler is pointed at the process's
+    own stderr, which absl never closes.
+    """
+    import sys
+
+    from absl import logging as absl_logging
+    from rliable import library, metrics
+
+    absl_logging.get_absl_handler().python_handler.stream = sys.__stderr__
+    return library, metrics
+
+
 def interval(scores: np.ndarray | list[np.ndarray], func: Callable[..., np.ndarray], config: StatsConfig
              ) -> tuple[np.ndarray, np.ndarray]:
     """``rliable.library.get_interval_estimates`` of ``func`` on one score matrix (or a list of matrices,
     resampled independently), seeded: the point estimates and the ``[2, ...]`` interval."""
-    from rliable import library
+    library, _ = rliable_modules()
 
     with _seeded(config.seed):
         points, intervals = library.get_interval_estimates(

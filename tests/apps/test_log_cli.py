@@ -16,6 +16,7 @@ from PIL import Image
 from aia.apps.log_cli import main
 from aia.envs import make_env
 from aia.logging import MCAPLogger, SceneRecorder
+from aia.logging.stats import rliable_modules
 
 
 def _fake_run(folder, algo, seed, scores, env_map="empty"):
@@ -242,8 +243,7 @@ def _stats_runs(root):
 
 
 def test_stats_equals_rliable_called_directly(tmp_path, capsys):
-    from rliable import library, metrics
-
+    library, metrics = rliable_modules()
     _stats_runs(tmp_path)
     arguments = ["stats", str(tmp_path / "m"), "--group-by", "algo", "--baseline", str(tmp_path / "arvi"),
                  "--baseline-label", "ARVI", "--reps", "200", "--seed", "3"]

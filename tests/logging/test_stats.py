@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rliable import library, metrics
-
 from aia.logging.stats import (
     Estimate,
     StatsConfig,
@@ -15,8 +13,11 @@ from aia.logging.stats import (
     iqm,
     level_estimates,
     probability_of_improvement,
+    rliable_modules,
     verdict,
 )
+
+library, metrics = rliable_modules()
 
 REPS = 300  # small: every interval below is checked against rliable with the same resamples, not for its coverage
 
