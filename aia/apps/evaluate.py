@@ -13,7 +13,6 @@ budget every job writes the scores and log its own process would.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -26,6 +25,7 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs import StepCounter
 
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
+from aia.apps.summary import write_json
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.errors import ConfigError, one_line
@@ -187,7 +187,7 @@ def _report(cfg: DictConfig, out_dir: Path, logger: MCAPLogger, result: dict) ->
     print(f"{what}: score {result['score_mean']:.1f} +- {result['score_std']:.1f} over {cfg.episodes} episodes, "
           f"belief error {result['belief_error']:.1f} m ({how})")
     out = out_dir / "eval.json"
-    out.write_text(json.dumps(result, indent=2))
+    write_json(out, result)
     print(f"log written to {out} and {logger.path} (world 0's episode recorded: aia-log render {logger.path})")
 
 

@@ -1,12 +1,12 @@
 """``aia-rollout``: score scripted policies (random, belief pursuit) on a batch of tracking worlds.
 
 Runs one episode in each of ``num_worlds`` worlds per policy, prints the score (SPEC 9), the shaped
-return and the belief error (mean distance from the belief means to the true targets), and writes ``rollout.json`` in the Hydra run directory. ``aia-rollout --help`` lists the config.
+return and the belief error (mean distance from the belief means to the true targets), and writes
+``rollout.json`` in the Hydra run directory. ``aia-rollout --help`` lists the config.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -15,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from aia.apps.hydra_app import hydra_app
+from aia.apps.summary import write_json
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import belief_errors, episode_scores, run_episodes
@@ -75,8 +76,7 @@ def main(cfg: DictConfig) -> None:
         print(f"{r['policy']:<10}{r['score_mean']:>12.1f}{r['score_std']:>9.1f}{r['return_mean']:>10.1f}"
               f"{r['belief_error']:>9.2f}{r['observed_fraction']:>10.2f}{r['frames_per_s']:>11,.0f}")
     log = out_dir / "rollout.json"
-    log.write_text(json.dumps({"config": OmegaConf.to_container(cfg, resolve=True), "setting": choice,
-                               "results": results}, indent=2))
+    write_json(log, {"config": OmegaConf.to_container(cfg, resolve=True), "setting": choice, "results": results})
     print(f"log written to {log}")
 
 
