@@ -21,8 +21,8 @@ def _geometry(name="obstacles4"):
 
 @pytest.mark.parametrize("setting", ["ttenv_v2", "ttenv_v3"])
 def test_se2_targets_stay_free_within_limits_and_wrapped(setting):
-    env = make_env(setting, batch_size=64, seed=2, transforms=False, overrides=["map=obstacles4"])
-    td = env.rollout(100, break_when_any_done=False)
+    env = make_env(setting, batch_size=32, seed=2, transforms=False, overrides=["map=obstacles4"])
+    td = env.rollout(50, break_when_any_done=False)
     states = torch.cat((td["target_state"][:, :1], td["next", "target_state"]), 1)
     assert not env.geometry.in_collision(states[..., :2]).any()
     heading = states[..., 2]

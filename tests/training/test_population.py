@@ -136,11 +136,10 @@ def test_a_population_of_the_paper_network_trains_with_a_compiled_update_as_it_d
             torch.testing.assert_close(compiled[name], value, rtol=1e-4, atol=1e-6)
 
 
-@pytest.mark.parametrize("setting, method", [("ttenv_v1", "dqn"), ("ttenv_v2", "adfq_ts"), ("ttenv_v3", "dqn"),
-                                             ("evasive1", "adfq_ts"), ("ttenv_v2_particle", "dqn")])
-def test_a_population_trains_on_each_target_and_filter_preset(tmp_path, setting, method):
-    overrides = [*UNLOGGED, f"env={setting}", "env.max_steps=20", f"method={method}", "frames=60",
-                 "warmup_frames=40", "eval.episodes=1", "eval.every_episodes=3"]
+@pytest.mark.parametrize("setting", ["ttenv_v1", "ttenv_v2", "ttenv_v3", "evasive1", "ttenv_v2_particle"])
+def test_a_population_trains_on_each_target_and_filter_preset(tmp_path, setting):
+    overrides = [*UNLOGGED, f"env={setting}", "env.max_steps=20", "frames=60", "warmup_frames=40",
+                 "eval.episodes=1", "eval.every_episodes=3"]
     overrides += ["env.belief.particles=32"] if setting.endswith("particle") else []
     states = train_population([_config(*overrides, "seed=0"), _config(*overrides, "seed=1")],
                               [tmp_path / "a", tmp_path / "b"])
