@@ -229,10 +229,18 @@ def _start_now(job_id: str) -> None:
     subprocess.run(["scontrol", "update", f"JobId={job_id}", "StartTime=now"], check=True, timeout=30)
 
 
-def _end(sweep: subprocess.Popen, name: str) -> None:
-    """After a test: kill its sweep if it still runs and cancel whatever of its jobs (named ``name``) is left."""
+def _end(sweep: subprocess.Popen, name: str, settle_s: float = 30.0) -> None:
+    """After a test: kill its sweep if it still runs and cancel whatever of its jobs (named ``name``) is left.
+
+    A sweep that returned by itself may have a job still finishing (submitit reads the result before SLURM
+    marks the job COMPLETED): its jobs get ``settle_s`` to leave the queue first, or the cancel would record a
+    job that ended well as CANCELLED."""
     if sweep.poll() is None:
         sweep.kill()
+    else:
+        deadline = time.monotonic() + settle_s
+        while _squeue(name) and time.monotonic() < deadline:
+            time.sleep(0.5)
     subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
 
 
