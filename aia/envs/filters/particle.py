@@ -110,6 +110,6 @@ class ParticleFilter(BeliefFilter):
         """The state with its Gaussian summary: weighted mean and covariance of the particles."""
         mean = weighted_mean(particles, weights, self.model.angle)
         spread = residual(particles, mean.unsqueeze(-2), self.model.angle)
-        cov = ((weights[..., None, None] * spread.unsqueeze(-1)) * spread.unsqueeze(-2)).sum(-3)
+        cov = (weights.unsqueeze(-1) * spread).mT @ spread
         return {"belief_mean": mean, "belief_cov": 0.5 * (cov + cov.mT), "belief_particles": particles,
                 "belief_weights": weights}
