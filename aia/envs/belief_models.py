@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from aia.envs.belief import bmm
 from aia.envs.dynamics import double_integrator, se2_step
 
 BELIEF_MODELS = ("double_integrator", "se2", "se2_velocity")
@@ -47,6 +48,11 @@ class BeliefModel:
         return self.name != "se2"
 
     @property
+    def speed_entries(self) -> tuple[int, int] | None:
+        """``(first, end)``: the slice of the state that holds speeds (what ``belief.speed_clip`` clips)."""
+        return {"double_integrator": (2, 4), "se2_velocity": (3, 4)}.get(self.name)
+
+    @property
     def random_controls(self) -> int:
         """Uniforms a step of :meth:`propagate` takes per target (the ``random`` control's two)."""
         return 2 if self.name == "se2" and self.control == "random" else 0
@@ -55,7 +61,7 @@ class BeliefModel:
         """``f(state)`` for ``state [..., dim]`` (sigma points or particles included); ``uniforms [..., 2]``
         (broadcast over the trailing points) draw the ``random`` control of ``se2``."""
         if self.transition is not None:
-            return (state.unsqueeze(-2) * self.transition).sum(-1)
+            return bmm(state.unsqueeze(-2), self.transition.mT).squeeze(-2)
         if self.name == "se2_velocity":
             return torch.cat((se2_step(state[..., :3], state[..., 3:], self.dt), state[..., 3:]), -1)
         if uniforms is None:

@@ -191,9 +191,10 @@ _POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "targ
 _POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing",
              "belief.init_cov", "target.sine_step", "belief.ukf_kappa")
 _NON_NEGATIVE = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin", "belief.init_offset",
-                 "reward.obstacle_margin", "reward.collision_penalty", "target.turn_on_collision", "target.detour_margin",
-                 "belief.init_offset_angle", "belief.roughening", "target.flee_accel")
-_NUMBERS = ("target.reflect_gain", "target.sine_frequency", "target.sine_amplitude", "target.detour_speed", "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
+                 "reward.obstacle_margin", "reward.collision_penalty", "target.turn_on_collision",
+                 "target.detour_margin", "belief.init_offset_angle", "belief.roughening", "target.flee_accel")
+_NUMBERS = ("target.reflect_gain", "target.sine_frequency", "target.sine_amplitude", "target.detour_speed",
+            "reward.kappa_m", "reward.kappa_d", "reward.kappa_o", "reward.observed_bonus")
 _POSITIVE_OR_NULL = ("belief.det_cap", "belief.speed_clip", "target.speed_limit", "target.angular_speed_limit",
                      "target.flee_range")
 # The filter's model when belief.model is null: the true targets' own.

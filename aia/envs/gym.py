@@ -157,7 +157,7 @@ class TargetTrackingGymEnv(gymnasium.Env):
             observed=state["observed"][0],
             target_heading=None if self.base_env.targets.heading is None
             else state["target_state"][0, :, self.base_env.targets.heading],
-            particles=state["belief_particles"][0] if "belief_particles" in state.keys() else None,
+            particles=state["belief_particles"][0] if "belief_particles" in state.keys() else None,  # noqa: SIM118
         )
 
     # -------------------------------------------------------------- helpers

@@ -116,12 +116,13 @@ class DoubleIntegratorTargets(TargetModel):
         distance, direction = self.geometry.nearest_obstacle(state[..., :2])
         bearing = wrap_angle(direction - heading)
         side = torch.where(bearing >= 0, -1.0, 1.0)
-        uniform = 0.5 * (1.0 + torch.erf(normals[..., 1] / math.sqrt(2.0)))
+        uniform = _uniform(normals[..., 1])
         leave = bearing + side * (1.0 + uniform) * (math.pi / 2) + heading
         leave_speed = speed + normals[..., 0]
         after_collision = leave_speed.unsqueeze(-1) * torch.stack((torch.cos(leave), torch.sin(leave)), -1)
         turn = (math.pi / 2) * (1.0 + torch.sigmoid(speed - self.detour_speed))
-        accel = (speed * torch.cos(bearing)).clamp_min(0.0) / (distance - self.detour_margin).clamp_min(self.detour_floor)
+        ahead = (speed * torch.cos(bearing)).clamp_min(0.0)
+        accel = ahead / (distance - self.detour_margin).clamp_min(self.detour_floor)
         push_angle = bearing + side * turn + heading
         push = (self.dt * accel).unsqueeze(-1) * torch.stack((torch.cos(push_angle), torch.sin(push_angle)), -1)
         return after_collision, push
@@ -163,7 +164,8 @@ class SineTargets(TargetModel):
         along = cos * rel[..., 0] + sin * rel[..., 1] + self.step_length     # the curve's next abscissa
         across = self.amplitude * torch.sin(self.frequency * along)
         goal = origin + torch.stack((cos * along - sin * across, sin * along + cos * across), -1)
-        goal_heading = wrap_angle(torch.atan(self.amplitude * self.frequency * torch.cos(self.frequency * along)) + frame)
+        slope = self.amplitude * self.frequency * torch.cos(self.frequency * along)
+        goal_heading = wrap_angle(torch.atan(slope) + frame)
         v_max, w_max = self.limits
         v = (torch.linalg.vector_norm(goal - pose[..., :2], dim=-1) / self.dt).clamp(-v_max, v_max)
         w = (wrap_angle(goal_heading - pose[..., 2]) / self.dt).clamp(-w_max, w_max)
@@ -173,7 +175,7 @@ class SineTargets(TargetModel):
         kept = torch.cat((pose[..., :2], moved[..., 2:]), -1)
         moved = torch.where(blocked[..., None], kept, moved)
         # A blocked target starts its curve again where it stands, turned by U(-turn, turn).
-        uniform = 0.5 * (1.0 + torch.erf(normals[..., 0] / math.sqrt(2.0)))
+        uniform = _uniform(normals[..., 0])
         new_frame = wrap_angle(moved[..., 2] + (2.0 * uniform - 1.0) * self.turn)
         restart = torch.cat((moved[..., :2], new_frame.unsqueeze(-1)), -1)
         curve = torch.where(blocked[..., None], restart, state[..., 5:])
@@ -210,3 +212,8 @@ class ConstantSpeedTargets(TargetModel):
         moved = torch.where(blocked[..., None], fallback, moved)
         control = torch.where(blocked[..., None], mirrored_control, control)
         return torch.cat((moved, control), -1)
+
+
+def _uniform(normal: Tensor) -> Tensor:
+    """Uniforms in (0, 1) from standard normals (their CDF): a model's uniform draw from the step's normals."""
+    return 0.5 * (1.0 + torch.erf(normal / math.sqrt(2.0)))

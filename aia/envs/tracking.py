@@ -35,7 +35,6 @@ from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, Evas
 # Stream identifiers: draws for different purposes never share random bits (the filters' start at 11).
 _STEP_STREAM = 1
 _RESET_STREAM = 2
-_HEADING_STREAM = 3
 
 
 class TargetTrackingEnv(EnvBase):
@@ -57,8 +56,9 @@ class TargetTrackingEnv(EnvBase):
     (the mean's world-frame velocity, only when the filter's model has one), any state the filter keeps
     beside them, ``logdet_cov`` ``[B, N]``, ``observed`` ``[B, N]``, ``collision``, ``obstacle_polar``
     (distance, bearing of the closest obstacle in view, ``(range, pi)`` when none), ``target_state``
-    ``[B, N, D]`` (ground truth, the position first: for evaluation and rendering only). ``reward`` is the paper's score increment ``-mean_i log det Sigma_i``;
-    :class:`~aia.transforms.InfoReward` replaces it with the shaped reward. Episodes end by truncation
+    ``[B, N, D]`` (ground truth, the position first: for evaluation and rendering only). ``reward`` is the
+    paper's score increment ``-mean_i log det Sigma_i``; :class:`~aia.transforms.InfoReward` replaces it with
+    the shaped reward. Episodes end by truncation
     after ``config.max_steps`` steps.
     """
 
@@ -80,7 +80,7 @@ class TargetTrackingEnv(EnvBase):
         self.validate_actions = validate_actions
         self.num_targets = config.num_targets
         self.dtype = getattr(torch, config.dtype)
-        dev, dt, fdt = self.device, config.dt, self.dtype
+        dev, fdt = self.device, self.dtype
 
         self.map = load_map(config.map)
         self.geometry = map_geometry(
@@ -241,10 +241,11 @@ class TargetTrackingEnv(EnvBase):
         target_xy, belief_xy = self._placements(robot_xy, u_target.reshape(B, N, M, 2), u_belief.reshape(B, N, M, 2),
                                                 u_fallback.reshape(B, N, 3))
         # Headings, for the models that have one: each point faces away from what it was placed around, as
-        # ttenv's placement turns them (drawn from their own stream: the placements above stay as they were).
+        # ttenv's placement turns them (derived, not drawn: the placements' draws stay as they were).
         anchor_of_target = belief_xy if cfg.belief.init_anchor == "robot" else robot_xy[:, None, :]
         anchor_of_belief = robot_xy[:, None, :] if cfg.belief.init_anchor == "robot" else target_xy
-        target_heading, belief_heading = _direction(target_xy - anchor_of_target), _direction(belief_xy - anchor_of_belief)
+        target_heading = _direction(target_xy - anchor_of_target)
+        belief_heading = _direction(belief_xy - anchor_of_belief)
 
         model = self.belief_filter.model
         beliefs = self.belief_filter.initial(model.initial_mean(belief_xy, belief_heading), cfg.belief.init_cov,

@@ -28,8 +28,9 @@ class BeliefFeatures(Transform):
     Per target, in the robot frame: ``[r, alpha, rdot, alphadot, log det Sigma, observed]`` of the belief
     mean (the rates relative to the robot moving at its last commanded (v, w), from ``belief_velocity``);
     then ``[o_r, o_alpha]`` of the closest obstacle in view. Where the env emits no ``belief_velocity`` the
-    rates are left out: ``[r, alpha, log det Sigma, observed]`` per target, ``4N + 2`` in all. ``relative_velocity="2019"`` reproduces the authors' 2019 formula, whose
-    angular rate is taken about the map origin and whose robot velocity carries an extra ``|p| w`` term.
+    rates are left out: ``[r, alpha, log det Sigma, observed]`` per target, ``4N + 2`` in all.
+    ``relative_velocity="2019"`` reproduces the authors' 2019 formula, whose angular rate is taken about the
+    map origin and whose robot velocity carries an extra ``|p| w`` term.
     """
 
     def __init__(self, relative_velocity: str = "exact", out_key: str = "observation", compile: bool = False) -> None:
@@ -57,7 +58,7 @@ class BeliefFeatures(Transform):
         batch = mean_spec.shape[:-2]
         sensor_range = float(obstacle_spec.space.high.reshape(-1, 2)[0, 0])
         inf = math.inf
-        rates = _VELOCITY_KEY in observation_spec.keys()
+        rates = _VELOCITY_KEY in observation_spec.keys()  # noqa: SIM118 (a Composite has no `in`)
         per_target_low = [0.0, -math.pi, *([-inf, -inf] if rates else []), -inf, 0.0]
         per_target_high = [inf, math.pi, *([inf, inf] if rates else []), inf, 1.0]
         low = torch.tensor(per_target_low * num_targets + [0.0, -math.pi], dtype=mean_spec.dtype)

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
-
 from common import EPISODE_KEYS, STEP_KEYS
 
 STEPS = (0, 1, 10, 50, 100)  # t = 0: after the reset (ttenv has observed and updated, aia has not)
@@ -63,7 +63,7 @@ def table(t: dict, a: dict) -> str:
 
 
 def main() -> None:
-    runs = [json.load(open(path)) for path in sys.argv[1:]]
+    runs = [json.loads(Path(path).read_text()) for path in sys.argv[1:]]
     key = lambda r: (r["version"], r["policy"], MAPS.get(r["map"], r["map"]))  # noqa: E731
     ttenv, aia = {}, {}
     for r in runs:  # runs of the same side and key (other seeds) pool their episodes
@@ -81,7 +81,8 @@ def main() -> None:
         else:
             side[key(r)] = r
     print("cells: ttenv mean±se / aia mean±se (z); ! marks |z| >= 3\n")
-    for k in sorted(ttenv.keys() & aia.keys(), key=lambda k: (k[0], k[2], ("stay", "spin", "straight", "random").index(k[1]))):
+    policies = ("stay", "spin", "straight", "random")
+    for k in sorted(ttenv.keys() & aia.keys(), key=lambda k: (k[0], k[2], policies.index(k[1]))):
         print(table(ttenv[k], aia[k]) + "\n")
 
 

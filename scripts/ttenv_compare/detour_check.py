@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -43,7 +44,7 @@ def ttenv_side(path: str, count: int = 300) -> None:
         obstacle = target.obs_check_func(odom)
         rows.append(dict(state=state.tolist(), normal=normal, uniform=uniform, after=after[2:].tolist(),
                          push=list(push), obstacle=list(obstacle)))
-    json.dump(rows, open(path, "w"))
+    Path(path).write_text(json.dumps(rows))
     print(f"wrote {count} states to {path}")
 
 
@@ -53,7 +54,7 @@ def aia_side(path: str) -> None:
 
     from aia.envs import make_env
 
-    rows = json.load(open(path))
+    rows = json.loads(Path(path).read_text())
     env = make_env("ttenv_v1", batch_size=1, transforms=False, overrides=["dtype=float64"])
     state = torch.tensor([r["state"] for r in rows], dtype=torch.float64)[:, None]
     normals = torch.tensor([[r["normal"], norm.ppf(r["uniform"])] for r in rows], dtype=torch.float64)[:, None]

@@ -336,13 +336,16 @@ def test_ttenv_presets_specs_and_layout(setting, size, dim):
     td = env.rollout(4)
     assert td["next", "observation"].shape == (3, 4, 2 * size + 2)
     assert td["next", "belief_cov"].shape == (3, 4, 2, dim, dim)
-    assert ("next", "belief_velocity") in td.keys(True) if size == 6 else ("next", "belief_velocity") not in td.keys(True)
+    has_velocity = ("next", "belief_velocity") in td.keys(True)
+    assert has_velocity == (size == 6)
     observation = td["next", "observation"]
     assert torch.equal(observation[..., size - 2:2 * size:size], td["next", "logdet_cov"])
 
 
-@pytest.mark.parametrize("overrides", [["target.model=se2_sine", "belief.filter=ukf"],
-                                       ["target.model=se2_constant", "belief.filter=ukf", "belief.model=double_integrator"]])
+@pytest.mark.parametrize("overrides", [
+    ["target.model=se2_sine", "belief.filter=ukf"],
+    ["target.model=se2_constant", "belief.filter=ukf", "belief.model=double_integrator"],
+])
 def test_other_models_keep_a_world_independent_of_the_batch(overrides):
     def rollout(batch_size):
         env = make_env("small2", batch_size=batch_size, seed=4, overrides=overrides)

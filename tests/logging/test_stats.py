@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from aia.logging.stats import (
     Estimate,
     StatsConfig,

@@ -18,12 +18,19 @@ import torch
 from torch import Tensor
 from torchrl.data import TensorSpec, Unbounded
 
-from aia.envs import belief
+from aia.envs import belief, rng
 from aia.envs.belief_models import BeliefModel
 from aia.envs.dynamics import wrap_angle
 
-# The filters' random streams (aia.envs.rng), apart from the env's own (1, 2 and 3).
+# The filters' random streams (aia.envs.rng), apart from the env's own (1 and 2).
 CONTROL_STREAM = 11
+
+
+def wrap_entry(x: Tensor, index: int | None) -> Tensor:
+    """``x [..., n]`` with entry ``index`` (a heading or a bearing) wrapped to [-pi, pi); ``None``: ``x``."""
+    if index is None:
+        return x
+    return torch.cat((x[..., :index], wrap_angle(x[..., index:index + 1]), x[..., index + 1:]), -1)
 
 
 class BeliefFilter(ABC):
@@ -85,15 +92,18 @@ class BeliefFilter(ABC):
         if self.clip_to_map:
             position = torch.minimum(mean[..., :2].clamp_min(0.0), self.map_size)
             mean = torch.cat((position, mean[..., 2:]), -1)
-        if self.speed_clip is not None:
-            first = 2 if self.model.name == "double_integrator" else 3
-            speeds = mean[..., first:first + 2 if first == 2 else first + 1]
-            mean = torch.cat((mean[..., :first], speeds.clamp(-self.speed_clip, self.speed_clip),
-                              mean[..., first + speeds.shape[-1]:]), -1)
-        if self.model.angle is not None:
-            a = self.model.angle
-            mean = torch.cat((mean[..., :a], wrap_angle(mean[..., a:a + 1]), mean[..., a + 1:]), -1)
-        return mean
+        if self.speed_clip is not None and self.model.speed_entries is not None:
+            first, end = self.model.speed_entries
+            speeds = mean[..., first:end].clamp(-self.speed_clip, self.speed_clip)
+            mean = torch.cat((mean[..., :first], speeds, mean[..., end:]), -1)
+        return wrap_entry(mean, self.model.angle)
+
+    def control_uniforms(self, key: Tensor, step: Tensor, num_targets: int, dtype: torch.dtype) -> Tensor | None:
+        """``[B, N, 1, 2]`` the uniforms of the ``random`` control the model assumes this step (one per target,
+        shared by its sigma points or particles), or None when the model takes none."""
+        if not self.model.random_controls:
+            return None
+        return rng.uniform(key, step, CONTROL_STREAM, 2 * num_targets, dtype).unflatten(-1, (num_targets, 1, 2))
 
 
 class GaussianFilter(BeliefFilter):

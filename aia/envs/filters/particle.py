@@ -6,11 +6,11 @@ measurement (Gaussian, bearing residual wrapped) and normalised. Where the effec
 ``1 / sum w^2`` falls below ``resample_threshold * K``, the particles are resampled systematically (one
 uniform per target) and roughened against collapse (Gordon, Salmond and Smith 1993): each entry jittered by
 ``N(0, (roughening * E_j * K^(-1/d))^2)``, with ``E_j`` the spread (max - min) of entry ``j`` over the
-particles before resampling. The Gaussian summary the features, reward and score read is the weighted mean (circular in the
-heading) and the weighted covariance ``sum_k w_k r_k r_k^T`` of the particles. Every draw comes from the
-world's counter-based streams (:mod:`aia.envs.rng`), so a world's beliefs do not depend on the batch. The
-det cap and the 2019 clipping do not apply (clipped particles pile up on the bound and their covariance
-loses rank); headings are wrapped.
+particles before resampling. The Gaussian summary the features, reward and score read is the weighted
+mean (circular in the heading) and the weighted covariance ``sum_k w_k r_k r_k^T`` of the particles. Every
+draw comes from the world's counter-based streams (:mod:`aia.envs.rng`), so a world's beliefs do not depend
+on the batch. The det cap and the 2019 clipping do not apply (clipped particles pile up on the bound and
+their covariance loses rank); headings are wrapped.
 """
 
 from __future__ import annotations
@@ -23,9 +23,8 @@ from torchrl.data import TensorSpec, Unbounded
 
 from aia.envs import belief, rng
 from aia.envs.belief_models import BeliefModel
-from aia.envs.dynamics import wrap_angle
-from aia.envs.filters.base import CONTROL_STREAM, BeliefFilter
-from aia.envs.filters.unscented import residual, weighted_mean
+from aia.envs.filters.base import BeliefFilter, wrap_entry
+from aia.envs.filters.unscented import residual, weighted_mean, weighted_outer
 
 PARTICLE_STREAM = 12  # initial spread, process noise and roughening
 RESAMPLE_STREAM = 13  # the systematic resampling's uniforms
@@ -68,11 +67,8 @@ class ParticleFilter(BeliefFilter):
         B, N, K, d = particles.shape
         normals = rng.normal(key, step, PARTICLE_STREAM, 2 * self._draws, particles.dtype, self._noise_slots)
         process, rough = normals.reshape(B, 2, N, K, d).unbind(1)
-        uniforms = None
-        if self.model.random_controls:
-            uniforms = rng.uniform(key, step, CONTROL_STREAM, 2 * N, particles.dtype).unflatten(-1, (N, 1, 2))
-        particles = self.model.propagate(particles, uniforms)
-        particles = particles + (process.unsqueeze(-2) * self.noise_chol).sum(-1)
+        particles = self.model.propagate(particles, self.control_uniforms(key, step, N, particles.dtype))
+        particles = particles + belief.bmm(process.unsqueeze(-2), self.noise_chol.mT).squeeze(-2)
 
         # Weights: the measurement's likelihood under each particle, for the observed targets.
         predicted = belief.range_bearing(particles[..., :2], pose[:, None, None, :])
@@ -101,15 +97,12 @@ class ParticleFilter(BeliefFilter):
 
     def clip(self, mean: Tensor) -> Tensor:
         """Headings wrapped; no other clipping (see the module docstring)."""
-        if self.model.angle is None:
-            return mean
-        a = self.model.angle
-        return torch.cat((mean[..., :a], wrap_angle(mean[..., a:a + 1]), mean[..., a + 1:]), -1)
+        return wrap_entry(mean, self.model.angle)
 
     def _summary(self, particles: Tensor, weights: Tensor) -> dict[str, Tensor]:
         """The state with its Gaussian summary: weighted mean and covariance of the particles."""
         mean = weighted_mean(particles, weights, self.model.angle)
         spread = residual(particles, mean.unsqueeze(-2), self.model.angle)
-        cov = (weights.unsqueeze(-1) * spread).mT @ spread
+        cov = weighted_outer(spread, spread, weights)
         return {"belief_mean": mean, "belief_cov": 0.5 * (cov + cov.mT), "belief_particles": particles,
                 "belief_weights": weights}

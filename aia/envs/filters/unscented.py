@@ -12,14 +12,12 @@ not applied (the predicted belief is kept). ``tests/envs/filters`` checks it aga
 
 from __future__ import annotations
 
-
 import torch
 from torch import Tensor
 
-from aia.envs import belief, rng
+from aia.envs import belief
 from aia.envs.belief_models import BeliefModel
-from aia.envs.dynamics import wrap_angle
-from aia.envs.filters.base import CONTROL_STREAM, GaussianFilter
+from aia.envs.filters.base import GaussianFilter, wrap_entry
 
 
 class UnscentedKalmanFilter(GaussianFilter):
@@ -31,10 +29,7 @@ class UnscentedKalmanFilter(GaussianFilter):
         self.weights = sigma_weights(model.dim, kappa, meas_noise.dtype).to(meas_noise.device)
 
     def predict(self, mean: Tensor, cov: Tensor, key: Tensor, step: Tensor) -> tuple[Tensor, Tensor]:
-        uniforms = None
-        if self.model.random_controls:
-            n = mean.shape[-2]
-            uniforms = rng.uniform(key, step, CONTROL_STREAM, 2 * n, mean.dtype).unflatten(-1, (n, 1, 2))
+        uniforms = self.control_uniforms(key, step, mean.shape[-2], mean.dtype)
         points = self.model.propagate(sigma_points(mean, cov, self.kappa), uniforms)
         predicted = weighted_mean(points, self.weights, self.model.angle)
         spread = residual(points, predicted.unsqueeze(-2), self.model.angle)
@@ -90,18 +85,16 @@ def weighted_mean(points: Tensor, weights: Tensor, angle: int | None) -> Tensor:
 
 def residual(a: Tensor, b: Tensor, angle: int | None) -> Tensor:
     """``a - b`` with entry ``angle`` wrapped to [-pi, pi)."""
-    diff = a - b
-    if angle is None:
-        return diff
-    return torch.cat((diff[..., :angle], wrap_angle(diff[..., angle:angle + 1]), diff[..., angle + 1:]), -1)
+    return wrap_entry(a - b, angle)
 
 
 def weighted_outer(a: Tensor, b: Tensor, weights: Tensor) -> Tensor:
-    """``[..., n, m]`` ``sum_k w_k a_k b_k^T`` of ``a [..., P, n]`` and ``b [..., P, m]``.
+    """``[..., n, m]`` ``sum_k w_k a_k b_k^T`` of ``a [..., P, n]`` and ``b [..., P, m]``, ``weights`` ``[P]`` or
+    ``[..., P]``.
 
     A batched matmul, not a broadcast multiply-and-sum: compiled, the sum let inductor recompute the sigma
     points' unicycle move inside every entry's reduction, and the 5-state UKF stepped 4,096 worlds in 65 ms
     against 16 ms this way (and 19.8 ms eager).
     """
-    return (weights[:, None] * a).mT @ b
+    return (weights.unsqueeze(-1) * a).mT @ b
 
