@@ -59,7 +59,10 @@ class MapGeometry:
         self.num_bins = max(1, round(2 * math.pi / ray_spacing))
         self.bin_width = 2 * math.pi / self.num_bins
         self.fov_bins = max(1, min(self.num_bins, round(fov / self.bin_width)))
-        self._nearest_cell: Tensor | None = None  # nearest_obstacle's table, built on first use
+        self._nearest_cell: Tensor | None = None  # nearest_obstacle's table (nearest_obstacle_table)
+        # The directions towards the walls x = margin, x = width - margin, y = margin, y = height - margin.
+        self._wall_directions = torch.tensor([math.pi, 0.0, -math.pi / 2, math.pi / 2], dtype=dtype,
+                                             device=self.device)
         self.ray_table = (
             # built on the CPU from the map's own grid, then moved
             _polar_obstacle_table(grid_map.occupancy, self.resolution, sensor_range, self.num_bins).to(
@@ -142,8 +145,8 @@ class MapGeometry:
     def nearest_obstacle(self, xy: Tensor) -> tuple[Tensor, Tensor]:
         """``(distance [...], direction [...])`` from each position ``xy [..., 2]`` to the nearest obstacle in
         any direction and at any range: the nearest of the walls (the bounds shrunk by ``margin``) and the
-        centres of the occupied cells (the nearest centre to the centre of ``xy``'s cell, from a table built
-        on first use), ``direction`` the world-frame angle towards it.
+        centres of the occupied cells (the nearest centre to the centre of ``xy``'s cell, from
+        :meth:`nearest_obstacle_table`), ``direction`` the world-frame angle towards it.
 
         ttenv's targets ask this (its ``get_closest_obstacle`` over a full turn of rays to 1 km: the first
         wall or occupied cell along each ray, the closest of all).
@@ -152,18 +155,24 @@ class MapGeometry:
         walls = torch.stack((x - self.margin, (self.size[0] - self.margin) - x,
                              y - self.margin, (self.size[1] - self.margin) - y), -1)
         distance, side = walls.min(-1)
-        direction = torch.tensor([math.pi, 0.0, -math.pi / 2, math.pi / 2], dtype=self.dtype,
-                                 device=self.device)[side]
+        direction = self._wall_directions[side]
         if self.has_obstacles:
-            if self._nearest_cell is None:
-                self._nearest_cell = _nearest_occupied(self.map).to(self.device, self.dtype)
-            centre = self._nearest_cell[self._cell_index(xy, self.resolution, self.occupancy.shape)]
+            table = self.nearest_obstacle_table()
+            centre = table[self._cell_index(xy, self.resolution, self.occupancy.shape)]
             delta = centre - xy
             cell_distance = torch.linalg.vector_norm(delta, dim=-1)
             closer = cell_distance < distance
             distance = torch.where(closer, cell_distance, distance)
             direction = torch.where(closer, torch.atan2(delta[..., 1], delta[..., 0]), direction)
         return distance, direction
+
+    def nearest_obstacle_table(self) -> Tensor:
+        """``[ny * nx, 2]`` the nearest occupied cell centre to each cell's, built on the first call (about a
+        second for ``obstacles4``): a model that queries :meth:`nearest_obstacle` calls it when it is built, so
+        that the table is not made inside a (compiled) step."""
+        if self._nearest_cell is None:
+            self._nearest_cell = _nearest_occupied(self.map).to(self.device, self.dtype)
+        return self._nearest_cell
 
     def _wall_distance(self, xy: Tensor, angles: Tensor) -> Tensor:
         """Distance along each ray (``angles [..., R]``) from ``xy [..., 2]`` to the margin-shrunk bounds."""

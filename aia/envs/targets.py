@@ -75,6 +75,8 @@ class DoubleIntegratorTargets(TargetModel):
         super().__init__(geometry, dt)
         self.collision_rule = collision_rule
         self.detour_margin, self.detour_speed, self.detour_floor = detour_margin, detour_speed, detour_floor
+        if collision_rule == "detour" and geometry.has_obstacles:
+            geometry.nearest_obstacle_table()
         transition, noise = double_integrator(dt, q)
         # W is positive definite for q > 0 (its 2x2 block has determinant q^2 dt^4 / 12).
         chol = torch.linalg.cholesky(noise) if q > 0 else torch.zeros(4, 4, dtype=torch.float64)
@@ -194,6 +196,7 @@ class ConstantSpeedTargets(TargetModel):
         chol = torch.linalg.cholesky(noise) if q > 0 else torch.zeros(2, 2, dtype=torch.float64)
         self.noise_chol = chol.to(geometry.device, geometry.dtype)
         self.limit = torch.tensor([speed_limit, angular_speed_limit], dtype=geometry.dtype, device=geometry.device)
+        self.mirror = torch.tensor([1.0, -1.0], dtype=geometry.dtype, device=geometry.device)  # (v, w) -> (v, -w)
 
     def initial(self, xy: Tensor, heading: Tensor) -> Tensor:
         return torch.cat((xy, heading.unsqueeze(-1), torch.zeros_like(xy)), -1)
@@ -203,7 +206,7 @@ class ConstantSpeedTargets(TargetModel):
         control = state[..., 3:] + belief.bmm(normals.unsqueeze(-2), self.noise_chol.mT).squeeze(-2)
         control = torch.maximum(torch.minimum(control, self.limit), -self.limit)
         moved = se2_step(pose, control, self.dt)
-        mirrored_control = control * torch.tensor([1.0, -1.0], dtype=control.dtype, device=control.device)
+        mirrored_control = control * self.mirror
         mirrored = se2_step(pose, mirrored_control, self.dt)
         turned = torch.cat((pose[..., :2], wrap_angle(pose[..., 2:] + math.pi)), -1)
         blocked = self.geometry.in_collision(moved[..., :2])
