@@ -26,9 +26,10 @@ from torchrl.envs import StepCounter
 
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.apps.summary import write_json
+from aia.config.errors import ConfigError, one_line
+from aia.config.validation import check_checkpoint_file, validate_eval_config
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.errors import ConfigError, one_line
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.memory import keep_freed_memory
@@ -36,7 +37,6 @@ from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
 from aia.training import make_actor
 from aia.training.members import check_population
-from aia.validation import check_checkpoint_file, validate_eval_config
 
 POLICIES = ("checkpoint", "arvi")
 

@@ -1,10 +1,10 @@
 """How the Hydra apps (``aia-train``, ``aia-eval``, ``aia-rollout``) run: one-line errors, quiet libraries.
 
 Libraries log at WARNING and above only (torchrl's INFO lines would break into the progress bar). An
-invalid input (a :class:`~aia.errors.ConfigError` from the validation layer, or a command line Hydra
+invalid input (a :class:`~aia.config.errors.ConfigError` from the validation layer, or a command line Hydra
 cannot compose: an unknown group option or key, a malformed override) ends the app with one line on stderr,
 ``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. A run that fails for a reason outside
-its config (:class:`~aia.errors.RunFailed`: a file it could not write, a run folder in use, a sweep job whose
+its config (:class:`~aia.config.errors.RunFailed`: a file it could not write, a run folder in use, a sweep job whose
 process died, this one after the other jobs) ends it with one line and exit status 1. Any other exception is an
 internal error and keeps its full traceback. ``--debug`` (taken off the command line) or ``HYDRA_FULL_ERROR=1`` keeps
 the traceback of invalid input too.
@@ -26,7 +26,7 @@ from hydra.errors import ConfigCompositionException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from aia.errors import ConfigError, RunFailed, one_line
+from aia.config.errors import ConfigError, RunFailed, one_line
 
 COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
 DEBUG_FLAG = "--debug"

@@ -16,11 +16,11 @@ from tqdm import tqdm
 
 from aia.apps.hydra_app import hydra_app
 from aia.apps.summary import write_json
+from aia.config.validation import ROLLOUT_POLICIES, validate_rollout_config
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import belief_errors, episode_scores, run_episodes
 from aia.policies import BeliefPursuitPolicy, RandomPolicy
-from aia.validation import ROLLOUT_POLICIES, validate_rollout_config
 
 
 def make_policy(name: str, env, seed: int, standoff: float):

@@ -6,13 +6,13 @@ import json
 import os
 from pathlib import Path
 
-from aia.errors import WriteFailed, os_error_text
+from aia.config.errors import WriteFailed, os_error_text
 
 
 def write_json(path: Path, data: object) -> None:
     """Write ``data`` as JSON to ``path`` through a temporary file renamed over it: a failed write (a full
     disk) leaves the previous file as it was and no temporary file, and ends the app in one line
-    (:class:`~aia.errors.WriteFailed`, exit status 1)."""
+    (:class:`~aia.config.errors.WriteFailed`, exit status 1)."""
     temporary = path.with_name(path.name + ".tmp")
     try:
         with open(temporary, "wb") as file:

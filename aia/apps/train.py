@@ -17,12 +17,12 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
+from aia.config.validation import validate_train_config
 from aia.objective import search_objective
 from aia.timing import PhaseTimer
 from aia.training import TrainingState, train, train_population
 from aia.training.checkpoint import CHECKPOINT_NAME
 from aia.training.stopping import StopOnSignals
-from aia.validation import validate_train_config
 
 
 @hydra_app("aia-train", config_name="train", population="aia.apps.train.train_jobs")  # bad input: one line, exit 2

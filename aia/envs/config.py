@@ -15,7 +15,7 @@ from typing import Optional
 
 from hydra.core.config_store import ConfigStore
 
-from aia.checks import check_choice, check_number, require
+from aia.config.checks import check_choice, check_number, require
 from aia.envs.belief_models import BELIEF_MODELS, CONTROLS
 from aia.envs.filters import FILTERS
 from aia.envs.maps import check_start_margin, load_map
@@ -215,7 +215,7 @@ def belief_model_name(cfg: TrackingConfig) -> str:
 
 
 def validate(cfg: TrackingConfig) -> None:
-    """Raise :class:`~aia.errors.ConfigError` naming the first field (``env.<field>``) whose value is out of
+    """Raise :class:`~aia.config.errors.ConfigError` naming the first field (``env.<field>``) whose value is out of
     its allowed set or range, or the map file and field that is wrong (the map is loaded and checked here)."""
     for name, allowed in _CHOICES.items():
         check_choice(f"env.{name}", _get(cfg, name), allowed)

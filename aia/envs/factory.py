@@ -16,11 +16,11 @@ from omegaconf.errors import OmegaConfBaseException
 from torchrl.envs import Compose
 
 import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's ConfigStore)
-from aia.checks import check_choice
+from aia.config.checks import check_choice
+from aia.config.errors import ConfigError, one_line
 from aia.envs.config import TrackingConfig
 from aia.envs.tracking import TargetTrackingEnv
 from aia.envs.transformed import TrackingTransformedEnv
-from aia.errors import ConfigError, one_line
 from aia.transforms import BeliefFeatures, InfoReward
 
 
@@ -49,7 +49,7 @@ def load_env_config(setting: str = "empty1", overrides: Sequence[str] = ()) -> T
 
 def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
     """A validated :class:`TrackingConfig` from a composed ``env`` node (or the config itself); a
-    :class:`~aia.errors.ConfigError` names the first bad field."""
+    :class:`~aia.config.errors.ConfigError` names the first bad field."""
     if isinstance(cfg, TrackingConfig):
         return cfg
     try:

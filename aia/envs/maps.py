@@ -20,8 +20,8 @@ import torch
 import yaml
 from torch import Tensor
 
-from aia.checks import check_number, require
-from aia.errors import ConfigError
+from aia.config.checks import check_number, require
+from aia.config.errors import ConfigError
 
 _MAP_KEYS = {"size", "resolution", "robot_start", "border_cells", "boxes", "rotated_boxes", "grid", "description"}
 
@@ -68,7 +68,7 @@ def available_maps() -> list[str]:
 @functools.lru_cache(maxsize=32)
 def load_map(name_or_path: str) -> GridMap:
     """Load a shipped map by name (``"obstacles4"``) or any map YAML by path; a
-    :class:`~aia.errors.ConfigError` names the file, the field and what is allowed."""
+    :class:`~aia.config.errors.ConfigError` names the file, the field and what is allowed."""
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = map_directory() / f"{name_or_path}.yaml"
@@ -87,7 +87,7 @@ def load_map(name_or_path: str) -> GridMap:
 def build_map(spec: dict, name: str = "custom", base_dir: Path | None = None, source: str | None = None) -> GridMap:
     """Build a :class:`GridMap` from a map specification (the parsed YAML; see the module docstring).
     Every field is checked (sizes positive, obstacles inside the map, the robot's start inside and free);
-    a :class:`~aia.errors.ConfigError` names ``source`` (default: ``map '<name>'``) and the field."""
+    a :class:`~aia.config.errors.ConfigError` names ``source`` (default: ``map '<name>'``) and the field."""
     source = source or f"map {name!r}"
     require(isinstance(spec, dict), "map", type(spec).__name__, "a mapping of fields (size, resolution, ...)", source)
     unknown = sorted(set(spec) - _MAP_KEYS)

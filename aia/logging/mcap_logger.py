@@ -29,7 +29,7 @@ Crash safety
     ``aia-log`` checks both (:mod:`aia.logging.reader`).
 
 Write errors
-    A failed write (a full disk, a lost mount) raises :class:`~aia.errors.WriteFailed` naming the file and the
+    A failed write (a full disk, a lost mount) raises :class:`~aia.config.errors.WriteFailed` naming the file and the
     OS error; the log then takes no more records. Closing it cuts the file back to its last flush (a torn chunk
     would hide what follows it) and appends the status record there if the disk takes it: the file reads as a
     log cut after its last flush, with ``failed: <reason>``.
@@ -65,7 +65,7 @@ from PIL import Image
 from torch import Tensor
 from torchrl.record.loggers import Logger
 
-from aia.errors import RunFailed, WriteFailed, one_line, os_error_text
+from aia.config.errors import RunFailed, WriteFailed, one_line, os_error_text
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA, flatten
 
@@ -250,7 +250,7 @@ class MCAPLogger(Logger):
         """Write the summary and the footer, close the file (idempotent). Called while an exception propagates
         (``finally: logger.close()``) on a run not yet marked, it first marks the run: ``stopped`` for Ctrl-C or
         SIGTERM (``KeyboardInterrupt``, ``SystemExit``), ``failed`` with the error otherwise (a
-        :class:`~aia.errors.RunFailed` as its one line, others as ``<type>: <message>``)."""
+        :class:`~aia.config.errors.RunFailed` as its one line, others as ``<type>: <message>``)."""
         if self._service_shutdown:
             return
         error = sys.exc_info()[1]

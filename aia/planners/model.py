@@ -9,7 +9,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from aia.checks import require
+from aia.config.checks import require
 from aia.envs import belief
 from aia.envs.filters import KalmanFilter
 from aia.envs.sensing import MapGeometry

@@ -10,7 +10,7 @@ loads exactly the original.)
 :func:`save_checkpoints` writes every member's new checkpoint beside its old one (``last.tmp``, flushed to
 disk) and only when all of them are written moves each member's ``last.pt`` to ``previous.pt`` and the new file
 to ``last.pt``. A failed write (a full disk, a lost mount) removes the temporary files and leaves every member's
-checkpoints as they were (a population stays at one point), and raises :class:`~aia.errors.WriteFailed`.
+checkpoints as they were (a population stays at one point), and raises :class:`~aia.config.errors.WriteFailed`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from aia.errors import WriteFailed, os_error_text
+from aia.config.errors import WriteFailed, os_error_text
 from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 
 _MSDOS_FOLDER = 0x10  # the folder bit of a zip record's external attributes: torch's reader skips such a record

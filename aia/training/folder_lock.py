@@ -5,7 +5,7 @@ host, pid and start time. A run that finds the folder locked
 
 * takes the lock over when its holder is provably gone: the same host, and no process with that pid;
 * else waits up to ``lock_wait_s`` seconds (a requeued cluster job whose earlier copy is still stopping) and then
-  gives up with :class:`~aia.errors.FolderLocked`, one line naming the holder and the lock file.
+  gives up with :class:`~aia.config.errors.FolderLocked`, one line naming the holder and the lock file.
 
 The lock is released (the file removed, if it is still this run's) on every exit that runs Python's cleanup:
 the end of the run, an error, Ctrl-C, SIGTERM. A run killed outright (SIGKILL, a lost node) leaves its lock
@@ -24,7 +24,7 @@ from collections.abc import Iterator, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
-from aia.errors import FolderLocked, WriteFailed, os_error_text
+from aia.config.errors import FolderLocked, WriteFailed, os_error_text
 
 LOCK_NAME = "run.lock"
 _POLL_S = 0.5  # how often a waiting run looks at the lock again
@@ -75,7 +75,7 @@ def _take_over(lock: Path, stale: dict) -> None:
 
 def _create(lock: Path) -> dict | None:
     """Create ``lock`` naming this process (returned), or None if it exists; a failed write (a full disk, a
-    read-only folder) raises :class:`~aia.errors.WriteFailed` and leaves no lock file."""
+    read-only folder) raises :class:`~aia.config.errors.WriteFailed` and leaves no lock file."""
     try:
         lock.parent.mkdir(parents=True, exist_ok=True)
         descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -128,7 +128,7 @@ def _release(folder: Path, holder: dict) -> None:
 @contextlib.contextmanager
 def folder_locks(folders: Sequence[Path], wait_s: float) -> Iterator[None]:
     """Hold every folder's lock for the ``with`` block (a population locks each member's folder); a folder in use
-    raises :class:`~aia.errors.FolderLocked` with the locks taken so far released."""
+    raises :class:`~aia.config.errors.FolderLocked` with the locks taken so far released."""
     held: list[tuple[Path, dict]] = []
     try:
         for folder in folders:

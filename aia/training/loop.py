@@ -40,9 +40,10 @@ from torchrl.envs import SelectTransform
 from torchrl.objectives import HardUpdate
 from torchrl.record.loggers import Logger
 
+from aia.config.errors import ConfigError
+from aia.config.validation import validate_train_config
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.errors import ConfigError
 from aia.evaluation import log_score_summary
 from aia.evaluator import Evaluator
 from aia.logging import MCAPLogger
@@ -67,7 +68,6 @@ from aia.training.replay import MemberReplay
 from aia.training.resuming import checkpoint_point, load_resumable, resume_path
 from aia.training.stopping import StopOnSignals
 from aia.training.target_cache import TargetCache
-from aia.validation import validate_train_config
 
 
 @dataclass
@@ -97,10 +97,10 @@ def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop:
                      ) -> list[TrainingState]:
     """Train one member per config, member ``k`` in ``out_dirs[k]``, as one batched program; returns each
     member's final counters (metrics go to each member's logger, closed on any exit). Each member's folder is
-    locked for the run (:mod:`.folder_lock`: a folder in use raises :class:`~aia.errors.FolderLocked`). Once
+    locked for the run (:mod:`.folder_lock`: a folder in use raises :class:`~aia.config.errors.FolderLocked`). Once
     ``stop`` has seen a signal, the loop ends at the end of the current episode as at the end of its budget:
     pending evaluations played, every member's checkpoint written, the logs marked stopped. A failed write of a
-    log or a checkpoint raises :class:`~aia.errors.WriteFailed` after every log is closed marked failed."""
+    log or a checkpoint raises :class:`~aia.config.errors.WriteFailed` after every log is closed marked failed."""
     if len(cfgs) != len(out_dirs):
         raise ValueError(f"{len(cfgs)} configs for {len(out_dirs)} run folders")
     for cfg in cfgs:

@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from aia.errors import ConfigError
+from aia.config.errors import ConfigError
 from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 from aia.training.checkpoint_files import checkpoint_damage
 from aia.training.members import flat_settings

@@ -224,16 +224,16 @@ class PopulationLauncher(Launcher):
         """The population entry: ``task`` if set, else the one the app declares (``hydra_app(population=)``)."""
         task = self.task or getattr(self.task_function, "population_task", None)
         if task is None:
-            from aia.errors import ConfigError  # imported here: see group_jobs
+            from aia.config.errors import ConfigError  # imported here: see group_jobs
 
             raise ConfigError("hydra.launcher.task", self.task, "the dotted path of a population entry (this app "
                               "declares none: hydra/launcher=population serves aia-train and aia-eval)")
         return task
 
     def _check_settings(self, task: str) -> None:
-        """Refuse a bad ``hydra.launcher.*`` value with a :class:`~aia.errors.ConfigError` (the app prints one
+        """Refuse a bad ``hydra.launcher.*`` value with a :class:`~aia.config.errors.ConfigError` (the app prints one
         line and exits with status 2) before any job folder is made."""
-        from aia.checks import check_flag, check_number, require  # imported here: see group_jobs
+        from aia.config.checks import check_flag, check_number, require  # imported here: see group_jobs
 
         check_number("hydra.launcher.n_jobs", self.n_jobs, ge=1, integer=True)
         check_flag("hydra.launcher.split_to_fill", self.split_to_fill)

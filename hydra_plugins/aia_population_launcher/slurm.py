@@ -129,7 +129,7 @@ class PopulationSlurmLauncher(PopulationLauncher):
 
     def _check_settings(self, task: str) -> None:
         super()._check_settings(task)
-        from aia.checks import check_number, require  # imported here: see group_jobs
+        from aia.config.checks import check_number, require  # imported here: see group_jobs
 
         for key, minimum in (("timeout_min", 1), ("cpus_per_task", 1), ("gpus_per_node", 0), ("mem_gb", 1),
                              ("signal_delay_s", 0), ("max_requeues", 0), ("array_parallelism", 1)):
@@ -176,7 +176,7 @@ class PopulationSlurmLauncher(PopulationLauncher):
                 tasks = [executor.submit(job, (task, cfgs, out_dirs, self.cpus_per_task))
                          for cfgs, out_dirs in members]
         except submitit.core.utils.FailedJobError as err:  # sbatch refused the array: a setting this cluster lacks
-            from aia.errors import ConfigError
+            from aia.config.errors import ConfigError
 
             refusal = next((line.strip() for line in str(err).splitlines() if line.strip()), "no message")
             raise ConfigError("hydra.launcher", refusal, "settings this cluster's sbatch accepts (partition, "
@@ -221,10 +221,10 @@ class PopulationSlurmLauncher(PopulationLauncher):
 def task_outcome(task, name: str, size: int) -> Outcome:
     """What a finished task gives each of its population's ``size`` jobs: the population's own outcome, or
     for a population that stopped or whose task ended without a result, an error each
-    (:class:`~aia.errors.JobFailed`) naming the jobs (``name``), the task and how to go on."""
+    (:class:`~aia.config.errors.JobFailed`) naming the jobs (``name``), the task and how to go on."""
     import submitit
 
-    from aia.errors import JobFailed
+    from aia.config.errors import JobFailed
 
     try:
         kind, payload = task.result()

@@ -84,11 +84,11 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], 
                    ) -> Iterator[tuple[int, Outcome]]:
     """Run ``calls`` in ``processes`` worker processes, each call in the order given as a worker frees up;
     yields ``(index of the call, its outcome)`` as each ends. What the workers print and their progress go to
-    ``display``. A call whose worker died fails each member with a :class:`~aia.errors.JobFailed` naming the
+    ``display``. A call whose worker died fails each member with a :class:`~aia.config.errors.JobFailed` naming the
     call (``names``, e.g. its job numbers) and how the process ended. See the module docstring for signals (a
     stop raises ``SystemExit`` with the workers' exit status once the running calls have ended)."""
     # imported here: Hydra's plugin scan imports this package for every app
-    from aia.errors import JobFailed
+    from aia.config.errors import JobFailed
     from aia.training.stopping import StopOnSignals
 
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch or thread state

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from aia.apps import evaluate, rollout, train
-from aia.errors import ConfigError
+from aia.config.errors import ConfigError
 
 HYDRA_QUIET = ["hydra.output_subdir=null", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled"]
 

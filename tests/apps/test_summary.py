@@ -7,7 +7,7 @@ import json
 import pytest
 
 import aia.apps.summary as summary
-from aia.errors import WriteFailed
+from aia.config.errors import WriteFailed
 
 
 def test_a_summary_is_written_whole_and_a_full_disk_leaves_the_previous_one(tmp_path, full_disk):

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
+from aia.config.errors import ConfigError
 from aia.envs import make_env
 from aia.envs.config import TrackingConfig
 from aia.envs.factory import available_settings, to_tracking_config
-from aia.errors import ConfigError
 
 CASES = [
     ("nowhere", [], "env='nowhere'", "empty1"),

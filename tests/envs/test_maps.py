@@ -7,9 +7,9 @@ import pytest
 import torch
 import yaml
 
+from aia.config.errors import ConfigError
 from aia.envs.config import TrackingConfig
 from aia.envs.maps import GridMap, available_maps, build_map, load_map
-from aia.errors import ConfigError
 
 
 def _occupied(m: GridMap, x: float, y: float) -> bool:

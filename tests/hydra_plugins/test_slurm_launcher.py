@@ -21,7 +21,7 @@ from hydra.core.plugins import Plugins
 from hydra.core.utils import JobStatus
 
 import aia.apps.train as train_app
-from aia.errors import JobFailed
+from aia.config.errors import JobFailed
 from aia.training.checkpoint import CHECKPOINT_NAME
 from hydra_plugins.aia_population_launcher import slurm
 

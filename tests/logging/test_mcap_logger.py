@@ -12,7 +12,7 @@ import yaml
 from mcap.reader import make_reader
 from omegaconf import OmegaConf
 
-from aia.errors import WriteFailed
+from aia.config.errors import WriteFailed
 from aia.logging import MCAPLogger, mcap_logger, read_run
 from aia.logging.metadata import flatten
 

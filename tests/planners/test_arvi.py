@@ -8,9 +8,9 @@ import pytest
 import torch
 from torchrl.envs import StepCounter
 
+from aia.config.errors import ConfigError
 from aia.envs import belief, make_env
 from aia.envs.dynamics import se2_step
-from aia.errors import ConfigError
 from aia.evaluation import episode_scores, run_episodes
 from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy, model, pruning, search, to_arvi_config
 from aia.policies import RandomPolicy

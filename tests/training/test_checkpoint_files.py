@@ -13,7 +13,7 @@ from hydra import compose, initialize_config_module
 
 import aia.training.checkpoint_files as checkpoint_files
 from aia.apps.evaluate import load_checkpoint
-from aia.errors import ConfigError, WriteFailed
+from aia.config.errors import ConfigError, WriteFailed
 from aia.training import train
 from aia.training.checkpoint_files import checkpoint_damage, save_checkpoints
 from aia.training.resuming import load_resumable, resume_path, resume_point

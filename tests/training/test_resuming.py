@@ -14,7 +14,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_module
 
-from aia.errors import ConfigError
+from aia.config.errors import ConfigError
 from aia.logging import find_runs, read_run
 from aia.training import train
 from aia.training.resuming import resume_point

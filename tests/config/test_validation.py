@@ -1,12 +1,12 @@
-"""aia.validation accepts every shipped preset and refuses cross-field mistakes by name."""
+"""aia.config.validation accepts every shipped preset and refuses cross-field mistakes by name."""
 
 from __future__ import annotations
 
 import pytest
 from hydra import compose, initialize_config_module
 
-from aia.errors import ConfigError
-from aia.validation import validate_eval_config, validate_rollout_config, validate_train_config
+from aia.config.errors import ConfigError
+from aia.config.validation import validate_eval_config, validate_rollout_config, validate_train_config
 
 PRESETS = [[], ["experiment=paper_obstacles1", "method=adfq_ts"], ["experiment=paper_small3", "method=ddqn"],
            ["env=small2_2019", "algo=adfq", "logger=csv"], ["logger=none", "eval.per_rollout=50"]]

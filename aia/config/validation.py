@@ -1,7 +1,7 @@
 """Validation of the apps' composed configs: every value, once, before a run starts.
 
 ``validate_train_config``, ``validate_eval_config`` and ``validate_rollout_config`` raise
-:class:`~aia.errors.ConfigError` (key, value, what is allowed) for the first bad value: types, ranges,
+:class:`~aia.config.errors.ConfigError` (key, value, what is allowed) for the first bad value: types, ranges,
 choices, cross-field rules (``batch_size <= buffer_size``, Thompson sampling needs ADFQ), devices this
 machine has, and the env setting with its map (:func:`aia.envs.factory.to_tracking_config`).
 """
@@ -13,9 +13,9 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from aia.checks import check_choice, check_device, check_flag, check_number, require
+from aia.config.checks import check_choice, check_device, check_flag, check_number, require
+from aia.config.errors import ConfigError, one_line
 from aia.envs.factory import to_tracking_config
-from aia.errors import ConfigError, one_line
 from aia.logging.mcap_logger import COMPRESSIONS
 from aia.modules.exploration import ALGORITHMS, EXPLORATIONS
 from aia.planners import to_arvi_config

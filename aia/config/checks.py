@@ -1,6 +1,6 @@
-"""Checks of single config values: each raises :class:`~aia.errors.ConfigError` naming the key, the value and
+"""Checks of single config values: each raises :class:`~aia.config.errors.ConfigError` naming the key, the value and
 what is allowed. The env config (:mod:`aia.envs.config`), the map loader and the apps' validation
-(:mod:`aia.validation`) are written with them."""
+(:mod:`aia.config.validation`) are written with them."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any
 
 import torch
 
-from aia.errors import ConfigError
+from aia.config.errors import ConfigError
 
 
 def require(ok: bool, key: str, value: Any, allowed: str, source: str | None = None) -> None:
