@@ -2,7 +2,8 @@
 
 Libraries log at WARNING and above only (torchrl's INFO lines would break into the progress bar). An
 invalid input (a :class:`~aia.config.errors.ConfigError` from the validation layer, or a command line Hydra
-cannot compose: an unknown group option or key, a malformed override) ends the app with one line on stderr,
+cannot compose: an unknown group option or key, a value of the wrong type for the app's typed schema, a
+malformed override) ends the app with one line on stderr,
 ``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. A run that fails for a reason outside
 its config (:class:`~aia.config.errors.RunFailed`: a file it could not write, a run folder in use, a sweep job whose
 process died, this one after the other jobs) ends it with one line and exit status 1. Any other exception is an
@@ -24,9 +25,10 @@ from typing import Any
 import hydra
 from hydra.errors import ConfigCompositionException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
+from omegaconf.errors import OmegaConfBaseException, ValidationError
 
 from aia.config.errors import ConfigError, RunFailed, one_line
+from aia.config.schemas import SCHEMAS, declared_check
 
 COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
 DEBUG_FLAG = "--debug"
@@ -104,7 +106,7 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
             except COMPOSITION_ERRORS as err:
                 if debug:
                     raise
-                _exit_with(prog, composition_message(err))
+                _exit_with(prog, composition_message(err, SCHEMAS[config_name]))
             except ConfigError as err:  # a sweep's failed job, raised by Hydra once the sweep has ended
                 if debug:
                     raise
@@ -124,11 +126,17 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
     return decorate
 
 
-def composition_message(err: Exception) -> str:
-    """Hydra's message without its config search path, with the first line of its OmegaConf cause (what
-    the value should have been)."""
-    message = str(err).split("Config search path")[0]
+def composition_message(err: Exception, schema: type) -> str:
+    """A command line Hydra could not compose, in one line. A value of the wrong type for a field of ``schema``
+    that declares a check is worded as the validation layer words a bad value (``frames='abc': expected an
+    integer >= 1``); otherwise Hydra's message without its config search path, with the first line of its
+    OmegaConf cause (what the value should have been)."""
     cause = err.__cause__
+    if isinstance(cause, ValidationError) and cause.full_key:
+        check = declared_check(schema, cause.full_key)
+        if check is not None:
+            return str(ConfigError(cause.full_key, cause.value, check.allowed))
+    message = str(err).split("Config search path")[0]
     if isinstance(cause, OmegaConfBaseException) and cause.msg:
         message += f" ({cause.msg.splitlines()[0]})"
     return message

@@ -16,7 +16,8 @@ from tqdm import tqdm
 
 from aia.apps.hydra_app import hydra_app
 from aia.apps.summary import write_json
-from aia.config.validation import ROLLOUT_POLICIES, validate_rollout_config
+from aia.config.schemas import ROLLOUT_POLICIES
+from aia.config.validation import validate_rollout_config
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import belief_errors, episode_scores, run_episodes

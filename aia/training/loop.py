@@ -41,7 +41,6 @@ from torchrl.objectives import HardUpdate
 from torchrl.record.loggers import Logger
 
 from aia.config.errors import ConfigError
-from aia.config.validation import validate_train_config
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import log_score_summary
@@ -103,8 +102,6 @@ def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop:
     log or a checkpoint raises :class:`~aia.config.errors.WriteFailed` after every log is closed marked failed."""
     if len(cfgs) != len(out_dirs):
         raise ValueError(f"{len(cfgs)} configs for {len(out_dirs)} run folders")
-    for cfg in cfgs:
-        validate_train_config(cfg)
     check_population(cfgs)
     out_dirs = [Path(d) for d in out_dirs]
     with folder_locks(out_dirs, cfgs[0].lock_wait_s):

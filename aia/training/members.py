@@ -1,8 +1,9 @@
 """Which runs can train as one population, and what may differ between its members.
 
 Members of one population share the env setting, the network, the loss's family and every counter of the loop;
-only the keys of :data:`MEMBER_KEYS` may differ, and ``algo.name`` only within one of :data:`FAMILIES`' families
-(DQN and Double DQN differ only in their targets' next action; ADFQ has another network and loss).
+only the keys of :data:`MEMBER_KEYS` may differ (the fields of :class:`~aia.config.schemas.TrainConfig` declared
+``member``), and ``algo.name`` only within one of :data:`FAMILIES`' families (DQN and Double DQN differ only in
+their targets' next action; ADFQ has another network and loss).
 :func:`population_signature` is what the population launcher groups jobs by; :func:`check_population` refuses
 a group forced together that differs elsewhere.
 """
@@ -13,10 +14,11 @@ from collections.abc import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
+from aia.config.schemas import TrainConfig, keys_where
+
 # What each member sets for itself: its seed, its learning rate, its method (algorithm within a family, and
 # exploration: epsilon-greedy with its schedule, or Thompson sampling), its checkpoint to resume from.
-MEMBER_KEYS = ("seed", "lr", "method", "algo.name", "exploration.name", "exploration.eps_init", "exploration.eps_end",
-               "exploration.annealing_fraction", "resume")
+MEMBER_KEYS = keys_where(TrainConfig, "member")
 # Member keys whose values fall into families: members may differ in such a key only within one family (a value
 # not listed is a family of its own).
 FAMILIES: dict[str, dict[object, str]] = {"algo.name": {"dqn": "dqn", "ddqn": "dqn"}}

@@ -4,9 +4,10 @@
 run's own folder (``checkpoints/last.pt``, else ``checkpoints/previous.pt``, saying why) if there is one, else
 the run starts fresh (what a requeued cluster job needs: the same command in the same folder). A checkpoint
 whose records fail their CRC-32 check (:func:`~aia.training.checkpoint_files.checkpoint_damage`) is refused. A
-checkpoint of a run that differs in a setting that shapes what is learned (:data:`RESUME_KEYS`:
-the env, the algorithm, the network, the exploration, the seed, the worlds and the replay) is refused, naming
-every differing key with both values; budgets (``frames``), logging and compile switches may change.
+checkpoint of a run that differs in a setting that shapes what is learned (:data:`RESUME_KEYS`, the fields of
+:class:`~aia.config.schemas.TrainConfig` declared ``resume``: the env, the algorithm, the network, the
+exploration, the seed, the worlds and the replay) is refused, naming every differing key with both values;
+budgets (``frames``), logging and compile switches may change.
 """
 
 from __future__ import annotations
@@ -18,12 +19,12 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from aia.config.errors import ConfigError
+from aia.config.schemas import TrainConfig, keys_where
 from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 from aia.training.checkpoint_files import checkpoint_damage
 from aia.training.members import flat_settings
 
-RESUME_KEYS = ("env", "algo", "exploration.name", "hidden", "seed", "collector.num_envs", "buffer_size",
-               "batch_size", "gamma", "target_update_interval", "warmup_frames", "updates_per_frame")
+RESUME_KEYS = keys_where(TrainConfig, "resume")
 
 
 @dataclass(frozen=True)
