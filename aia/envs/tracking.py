@@ -7,7 +7,7 @@ targets, observes the visible ones with the range-bearing sensor, and hands the 
 which predicts every belief and updates the observed ones. The env emits the raw world state; the RL
 observation and the shaped reward come from the transforms in :mod:`aia.transforms`.
 
-Randomness comes from :mod:`aia.envs.rng`: every world has its own reproducible stream keyed by the seed,
+Randomness comes from :mod:`aia.rng`: every world has its own reproducible stream keyed by the seed,
 its index and its episode count, so partial resets of some worlds never change what the others draw.
 """
 
@@ -22,8 +22,9 @@ from torch import Tensor
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from aia import rng
 from aia.compiling import compiled
-from aia.envs import belief, rng
+from aia.envs import belief
 from aia.envs.belief_models import belief_model
 from aia.envs.config import TrackingConfig, belief_model_name
 from aia.envs.dynamics import motion_primitives, se2_step
@@ -31,10 +32,6 @@ from aia.envs.filters import FILTERS, BeliefFilter
 from aia.envs.maps import load_map
 from aia.envs.sensing import MapGeometry, map_geometry
 from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, EvasiveTargets, SineTargets, TargetModel
-
-# Stream identifiers: draws for different purposes never share random bits (the filters' start at 11).
-_STEP_STREAM = 1
-_RESET_STREAM = 2
 
 
 class TargetTrackingEnv(EnvBase):
@@ -229,7 +226,7 @@ class TargetTrackingEnv(EnvBase):
         cfg, geom = self.config, self.geometry
         B, N, M, dev, fdt = self.batch_size[0], self.num_targets, cfg.target.init_candidates, self.device, self.dtype
         counter = torch.zeros_like(self._step_count)
-        u = rng.uniform(self._episode_key, counter, _RESET_STREAM, 4 + N * (4 * M + 3), fdt)
+        u = rng.uniform(self._episode_key, counter, rng.WorldStream.RESET, 4 + N * (4 * M + 3), fdt)
         u_robot, u_heading, u_target, u_belief, u_fallback = torch.split(u, (3, 1, 2 * N * M, 2 * N * M, 3 * N), -1)
 
         if self.map.robot_start is not None:
@@ -324,7 +321,7 @@ class TargetTrackingEnv(EnvBase):
         """
         cfg, geom = self.config, self.geometry
         N, pose, targets = self.num_targets, state["robot_pose"], state["target_state"]
-        noise = rng.normal(key, step, _STEP_STREAM, self._step_normals * N, self.dtype, self._step_slots)
+        noise = rng.normal(key, step, rng.WorldStream.STEP, self._step_normals * N, self.dtype, self._step_slots)
         noise = noise.unflatten(-1, (N, self._step_normals))
 
         # Robot: a colliding move (or, in the 2019 rule, one too close to the targets) keeps the position;

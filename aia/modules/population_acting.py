@@ -5,8 +5,8 @@ One call runs the :class:`~aia.modules.StackedQNetwork` on every member's observ
 exploration: uniformly random actions during its warm-up frames, then epsilon-greedy on its own linear
 schedule, or ADFQ's Thompson sampling (``argmax_a q_a``, ``q_a ~ N(mean_a, sd_a^2)``), each member its own.
 
-All draws are counter-based (:mod:`aia.envs.rng`): a pure function of the member's seed, the policy's step
-count and the world's slot, computed a block of steps at a time (:class:`~aia.envs.rng.CounterStream`). So a
+All draws are counter-based (:mod:`aia.rng`): a pure function of the member's seed, the policy's step
+count and the world's slot, computed a block of steps at a time (:class:`~aia.rng.CounterStream`). So a
 member draws the same numbers whatever the other members are (member ``k`` of a population acts exactly as a
 population of one with its seed would), nothing but the step count is state (a checkpoint stores it), and no
 draw needs a host sync on CUDA (the step count lives on the host, epsilon is computed on the device).
@@ -21,14 +21,9 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 
-from aia.envs import rng
+from aia import rng
 from aia.modules.exploration import exploring
 from aia.modules.stacked import StackedQNetwork
-
-# rng streams of the policy's draws (per step and member)
-_EXPLORE_STREAM, _RANDOM_STREAM, _THOMPSON_STREAM = 0, 1, 2
-# rng purpose of the policy's keys (apart from the env's world streams and the replay's)
-ACTING_PURPOSE = 1
 
 
 class PopulationQPolicy(TensorDictModuleBase):
@@ -69,16 +64,16 @@ class PopulationQPolicy(TensorDictModuleBase):
         self.samples = samples  # which members explore by Thompson sampling
         self.warmup_frames = warmup_frames
         device = network.weight0.device
-        self.keys = rng.seed_keys(list(seeds), ACTING_PURPOSE, device)
+        self.keys = rng.seed_keys(list(seeds), rng.Purpose.ACTING, device)
         self._sampling = torch.tensor(samples, device=device).unsqueeze(-1)  # [P, 1]
         as_tensor = lambda values: torch.tensor(list(values), dtype=torch.float64, device=device)  # noqa: E731
         self.eps_init, self.eps_end = as_tensor(eps_init), as_tensor(eps_end)
         self.annealing_frames = as_tensor(annealing_frames)
         W, A = worlds_per_member, num_actions
-        self._draws = {"explore": rng.CounterStream(rng.uniform, self.keys, _EXPLORE_STREAM, W),
-                       "random": rng.CounterStream(rng.uniform, self.keys, _RANDOM_STREAM, W)}
+        self._draws = {"explore": rng.CounterStream(rng.uniform, self.keys, rng.ExplorationStream.EXPLORE, W),
+                       "random": rng.CounterStream(rng.uniform, self.keys, rng.ExplorationStream.RANDOM, W)}
         if any(samples):
-            self._draws["thompson"] = rng.CounterStream(rng.normal, self.keys, _THOMPSON_STREAM, W * A,
+            self._draws["thompson"] = rng.CounterStream(rng.normal, self.keys, rng.ExplorationStream.THOMPSON, W * A,
                                                         network.weight0.dtype)
 
     @property

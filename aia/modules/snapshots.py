@@ -5,7 +5,7 @@ evaluation it keeps a copy of the members' stacked parameters at each evaluation
 several of them in one batched rollout. The batch ``[G * P * E]`` holds ``G`` snapshots of ``P`` members with
 ``E`` worlds each: world group ``(g, k)`` acts with member ``k`` of snapshot ``g`` (``torch.func.vmap`` over
 the snapshots of the stacked network: one call for all groups) and draws its epsilon-greedy noise from its
-own counter-based stream (:mod:`aia.envs.rng`, keyed by the group's seed and the step), so what a group does
+own counter-based stream (:mod:`aia.rng`, keyed by the group's seed and the step), so what a group does
 never depends on the other groups, the snapshots or the members played beside it.
 """
 
@@ -18,14 +18,10 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 
+from aia import rng
 from aia.compiling import compiled
-from aia.envs import rng
 from aia.modules.exploration import exploring
 from aia.modules.stacked import StackedQNetwork
-
-# rng purpose of the evaluation noise's keys; streams of its two draws per step
-EVALUATION_PURPOSE = 3
-_EXPLORE_STREAM, _RANDOM_STREAM = 0, 1
 
 
 def parameter_snapshot(network: torch.nn.Module) -> dict[str, Tensor]:
@@ -67,7 +63,7 @@ class SnapshotPolicy(TensorDictModuleBase):
         stacked = {name: torch.stack([s[name] for s in snapshots]) for name in snapshots[0]}
         self._params = self.network.in_layer_dtypes(stacked)
         device = next(iter(self._params.values())).device
-        self.keys = rng.seed_keys([int(s) for group in seeds for s in group], EVALUATION_PURPOSE, device)
+        self.keys = rng.seed_keys([int(s) for group in seeds for s in group], rng.Purpose.EVALUATION, device)
         self.steps = torch.zeros((), dtype=torch.int64, device=device)
 
     def _values(self, params: dict[str, Tensor], obs: Tensor) -> Tensor:
@@ -97,8 +93,9 @@ class SnapshotPolicy(TensorDictModuleBase):
         if exploring():
             worlds = action.shape[-1]
             counter = self.steps.expand(groups)
-            explore = rng.uniform(self.keys, counter, _EXPLORE_STREAM, worlds, torch.float64) < self.epsilon
-            random = (rng.uniform(self.keys, counter, _RANDOM_STREAM, worlds, torch.float64) * self.num_actions)
+            draws = rng.ExplorationStream
+            explore = rng.uniform(self.keys, counter, draws.EXPLORE, worlds, torch.float64) < self.epsilon
+            random = (rng.uniform(self.keys, counter, draws.RANDOM, worlds, torch.float64) * self.num_actions)
             action = torch.where(explore, random.long(), action)
             self.steps += 1
         return tensordict.set(self.out_keys[0], action.reshape(obs.shape[0]))

@@ -2,7 +2,7 @@
 
 One ``TensorDict`` of shape ``[capacity, P]`` holds every member's transitions; members collect in lockstep
 (one frame each per world per step), so one write cursor serves all. Each member samples its own uniform
-indices from a counter-based stream (:mod:`aia.envs.rng`) keyed by its seed and the number of batches drawn so
+indices from a counter-based stream (:mod:`aia.rng`) keyed by its seed and the number of batches drawn so
 far (drawn a block of batches at a time): what member ``k`` replays does not depend on the other members, the
 sampler has no state but that count, and sampling needs no host sync on CUDA.
 
@@ -21,10 +21,7 @@ from collections.abc import Sequence
 import torch
 from tensordict import NestedKey, TensorDictBase
 
-from aia.envs import rng
-
-# rng purpose of the replay's keys (apart from the env's world streams and the policy's)
-REPLAY_PURPOSE = 2
+from aia import rng
 
 
 class MemberReplay:
@@ -43,11 +40,12 @@ class MemberReplay:
         self.batch_size = batch_size
         self.num_members = len(seeds)
         self.device = torch.device(device)
-        self.keys = rng.seed_keys(list(seeds), REPLAY_PURPOSE, device)
+        self.keys = rng.seed_keys(list(seeds), rng.Purpose.REPLAY, device)
         self.members = torch.arange(self.num_members, device=device).unsqueeze(-1).expand(-1, batch_size)
         self.cursor = 0  # next row written
         self.size = 0  # rows filled
-        self._uniforms = rng.CounterStream(rng.uniform, self.keys, 0, batch_size)  # counter: batches drawn
+        # counter: batches drawn
+        self._uniforms = rng.CounterStream(rng.uniform, self.keys, rng.ReplayStream.INDICES, batch_size)
         self._rows: TensorDictBase | None = None  # [capacity, P], allocated by the first write
         self._batch: TensorDictBase | None = None  # [P, batch_size], what sample fills
         self._leaves: list[tuple[NestedKey, torch.Tensor]] = []  # each key and its leaf of the rows

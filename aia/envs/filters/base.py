@@ -18,12 +18,10 @@ import torch
 from torch import Tensor
 from torchrl.data import TensorSpec, Unbounded
 
-from aia.envs import belief, rng
+from aia import rng
+from aia.envs import belief
 from aia.envs.belief_models import BeliefModel
 from aia.envs.dynamics import wrap_angle
-
-# The filters' random streams (aia.envs.rng), apart from the env's own (1 and 2).
-CONTROL_STREAM = 11
 
 
 def wrap_entry(x: Tensor, index: int | None) -> Tensor:
@@ -103,7 +101,8 @@ class BeliefFilter(ABC):
         shared by its sigma points or particles), or None when the model takes none."""
         if not self.model.random_controls:
             return None
-        return rng.uniform(key, step, CONTROL_STREAM, 2 * num_targets, dtype).unflatten(-1, (num_targets, 1, 2))
+        u = rng.uniform(key, step, rng.WorldStream.CONTROL, 2 * num_targets, dtype)
+        return u.unflatten(-1, (num_targets, 1, 2))
 
 
 class GaussianFilter(BeliefFilter):

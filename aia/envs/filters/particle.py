@@ -8,7 +8,7 @@ uniform per target) and roughened against collapse (Gordon, Salmond and Smith 19
 ``N(0, (roughening * E_j * K^(-1/d))^2)``, with ``E_j`` the spread (max - min) of entry ``j`` over the
 particles before resampling. The Gaussian summary the features, reward and score read is the weighted
 mean (circular in the heading) and the weighted covariance ``sum_k w_k r_k r_k^T`` of the particles. Every
-draw comes from the world's counter-based streams (:mod:`aia.envs.rng`), so a world's beliefs do not depend
+draw comes from the world's counter-based streams (:mod:`aia.rng`), so a world's beliefs do not depend
 on the batch. The det cap and the 2019 clipping do not apply (clipped particles pile up on the bound and
 their covariance loses rank); headings are wrapped.
 """
@@ -21,13 +21,11 @@ import torch
 from torch import Tensor
 from torchrl.data import TensorSpec, Unbounded
 
-from aia.envs import belief, rng
+from aia import rng
+from aia.envs import belief
 from aia.envs.belief_models import BeliefModel
 from aia.envs.filters.base import BeliefFilter, wrap_entry
 from aia.envs.filters.unscented import residual, weighted_mean, weighted_outer
-
-PARTICLE_STREAM = 12  # initial spread, process noise and roughening
-RESAMPLE_STREAM = 13  # the systematic resampling's uniforms
 
 
 class ParticleFilter(BeliefFilter):
@@ -56,7 +54,7 @@ class ParticleFilter(BeliefFilter):
 
     def initial(self, mean: Tensor, init_cov: float, key: Tensor, step: Tensor) -> dict[str, Tensor]:
         B, N, K, d = *mean.shape[:2], self.particles, self.dim
-        normals = rng.normal(key, step, PARTICLE_STREAM, self._draws, mean.dtype, self._start_slots)
+        normals = rng.normal(key, step, rng.WorldStream.PARTICLE, self._draws, mean.dtype, self._start_slots)
         particles = self.clip(mean.unsqueeze(-2) + math.sqrt(init_cov) * normals.reshape(B, N, K, d))
         weights = torch.full((B, N, K), 1.0 / K, dtype=mean.dtype, device=mean.device)
         return self._summary(particles, weights)
@@ -65,7 +63,7 @@ class ParticleFilter(BeliefFilter):
              step: Tensor) -> dict[str, Tensor]:
         particles, weights = state["belief_particles"], state["belief_weights"]
         B, N, K, d = particles.shape
-        normals = rng.normal(key, step, PARTICLE_STREAM, 2 * self._draws, particles.dtype, self._noise_slots)
+        normals = rng.normal(key, step, rng.WorldStream.PARTICLE, 2 * self._draws, particles.dtype, self._noise_slots)
         process, rough = normals.reshape(B, 2, N, K, d).unbind(1)
         particles = self.model.propagate(particles, self.control_uniforms(key, step, N, particles.dtype))
         particles = particles + belief.bmm(process.unsqueeze(-2), self.noise_chol.mT).squeeze(-2)
@@ -80,7 +78,7 @@ class ParticleFilter(BeliefFilter):
 
         # Systematic resampling where the effective sample size is low, then roughening.
         low = 1.0 / weights.square().sum(-1) < self.resample_threshold * K
-        start = rng.uniform(key, step, RESAMPLE_STREAM, N, particles.dtype, self._resample_slots)
+        start = rng.uniform(key, step, rng.WorldStream.RESAMPLE, N, particles.dtype, self._resample_slots)
         positions = (start.unsqueeze(-1) / K + self._offsets).contiguous()
         cumulative = torch.cumsum(weights, -1).contiguous()
         index = torch.searchsorted(cumulative, positions).clamp_max(K - 1)

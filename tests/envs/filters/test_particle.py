@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from aia.envs import make_env, rng
+from aia import rng
+from aia.envs import make_env
 from aia.envs.belief_models import belief_model
 from aia.envs.filters import KalmanFilter, ParticleFilter
 

@@ -1,4 +1,5 @@
-"""Counter-based random streams: one independent, reproducible stream per world.
+"""Counter-based random streams: one independent, reproducible stream per world (the numbers passed as
+``stream`` and ``purpose`` are declared in :mod:`aia.rng.streams`).
 
 A batched env cannot hold one ``torch.Generator`` per world, and a single generator couples the worlds:
 what world 3 draws would depend on how many other worlds were reset before it. Here every draw is a
@@ -44,8 +45,8 @@ def world_keys(seed: int, num_worlds: int, device: torch.device | str = "cpu") -
 
 
 def seed_keys(seeds: list[int], purpose: int, device: torch.device | str = "cpu") -> Tensor:
-    """``[len(seeds)]`` 32-bit keys, one per seed, for draws made for ``purpose`` (a small constant that keeps
-    the streams of different users of one seed apart, and apart from the seed's world streams)."""
+    """``[len(seeds)]`` 32-bit keys, one per seed, for draws made for ``purpose`` (a :class:`~aia.rng.streams.Purpose`:
+    it keeps the streams of different users of one seed apart, and apart from the seed's world streams)."""
     keys = [world_keys(int(seed), 1)[0] for seed in seeds]
     return mix32(torch.stack(keys) ^ mix32(torch.tensor(purpose * 0x632BE5AB + _GOLDEN) & _MASK32)).to(device)
 

@@ -1,4 +1,4 @@
-"""Tests of aia/envs/rng.py: the counter-based per-world random streams."""
+"""Tests of aia/rng/counter.py: the counter-based per-world random streams."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from aia.envs import rng
+from aia import rng
 
 MASK = 0xFFFFFFFF
 
