@@ -27,9 +27,11 @@ class WorldStream(IntEnum):
 
     STEP = 1       # TargetTrackingEnv's step: the targets' motion noise and the sensor noise
     RESET = 2      # TargetTrackingEnv's reset: the robot's, the targets' and the beliefs' initial states
+    MAP = 3        # aia.envs.map_generator: a random map's layout (counter: the attempt)
     CONTROL = 11   # BeliefFilter.control_uniforms: the random controls a filter assumes
-    PARTICLE = 12  # ParticleFilter: the initial spread, process noise and roughening
+    PARTICLE = 12  # ParticleFilter: the initial spread and the process noise
     RESAMPLE = 13  # ParticleFilter: the systematic resampling's uniforms
+    ROUGHENING = 14  # ParticleFilter: the roughening's uniforms
 
 
 @unique

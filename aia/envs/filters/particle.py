@@ -5,12 +5,14 @@ process noise ``N(0, Q)``; an observed target's weights are multiplied by the ra
 measurement (Gaussian, bearing residual wrapped) and normalised. Where the effective sample size
 ``1 / sum w^2`` falls below ``resample_threshold * K``, the particles are resampled systematically (one
 uniform per target) and roughened against collapse (Gordon, Salmond and Smith 1993): each entry jittered by
-``N(0, (roughening * E_j * K^(-1/d))^2)``, with ``E_j`` the spread (max - min) of entry ``j`` over the
-particles before resampling. The Gaussian summary the features, reward and score read is the weighted
-mean (circular in the heading) and the weighted covariance ``sum_k w_k r_k r_k^T`` of the particles. Every
-draw comes from the world's counter-based streams (:mod:`aia.rng`), so a world's beliefs do not depend
-on the batch. The det cap and the 2019 clipping do not apply (clipped particles pile up on the bound and
-their covariance loses rank); headings are wrapped.
+``roughening * E_j * K^(-1/d)`` times a zero-mean, unit-variance draw, with ``E_j`` the spread (max - min) of
+entry ``j`` over the particles before resampling (the heading's relative to the first particle). The jitter
+is uniform on ``[-sqrt(3), sqrt(3)]``, not Gaussian: the kernel only needs its scale, and Box-Muller normals
+for it were about a quarter of the step's transcendental work. The Gaussian summary the features, reward and
+score read is the weighted mean (circular in the heading) and the weighted covariance ``sum_k w_k r_k r_k^T``
+of the particles. Every draw comes from the world's counter-based streams (:mod:`aia.rng`), so a world's
+beliefs do not depend on the batch. The det cap and the 2019 clipping do not apply (clipped particles pile up
+on the bound and their covariance loses rank); headings are wrapped.
 """
 
 from __future__ import annotations
@@ -41,8 +43,8 @@ class ParticleFilter(BeliefFilter):
         self.meas_precision = 1.0 / torch.diagonal(meas_noise)
         d, device = model.dim, meas_noise.device
         self._draws = num_targets * particles * d
-        self._noise_slots = rng.slot_keys(2 * self._draws, device)        # process noise, then roughening
-        self._start_slots = rng.slot_keys(2 * math.ceil(self._draws / 2), device)
+        self._noise_slots = rng.slot_keys(2 * math.ceil(self._draws / 2), device)
+        self._rough_slots = rng.slot_keys(self._draws, device)
         self._resample_slots = rng.slot_keys(num_targets, device)
         self._offsets = torch.arange(particles, device=device, dtype=meas_noise.dtype) / particles
 
@@ -54,7 +56,7 @@ class ParticleFilter(BeliefFilter):
 
     def initial(self, mean: Tensor, init_cov: float, key: Tensor, step: Tensor) -> dict[str, Tensor]:
         B, N, K, d = *mean.shape[:2], self.particles, self.dim
-        normals = rng.normal(key, step, rng.WorldStream.PARTICLE, self._draws, mean.dtype, self._start_slots)
+        normals = rng.normal(key, step, rng.WorldStream.PARTICLE, self._draws, mean.dtype, self._noise_slots)
         particles = self.clip(mean.unsqueeze(-2) + math.sqrt(init_cov) * normals.reshape(B, N, K, d))
         weights = torch.full((B, N, K), 1.0 / K, dtype=mean.dtype, device=mean.device)
         return self._summary(particles, weights)
@@ -63,8 +65,10 @@ class ParticleFilter(BeliefFilter):
              step: Tensor) -> dict[str, Tensor]:
         particles, weights = state["belief_particles"], state["belief_weights"]
         B, N, K, d = particles.shape
-        normals = rng.normal(key, step, rng.WorldStream.PARTICLE, 2 * self._draws, particles.dtype, self._noise_slots)
-        process, rough = normals.reshape(B, 2, N, K, d).unbind(1)
+        process = rng.normal(key, step, rng.WorldStream.PARTICLE, self._draws, particles.dtype,
+                             self._noise_slots).reshape(B, N, K, d)
+        rough = rng.uniform(key, step, rng.WorldStream.ROUGHENING, self._draws, particles.dtype,
+                            self._rough_slots).reshape(B, N, K, d)
         particles = self.model.propagate(particles, self.control_uniforms(key, step, N, particles.dtype))
         particles = particles + belief.bmm(process.unsqueeze(-2), self.noise_chol.mT).squeeze(-2)
 
@@ -84,11 +88,12 @@ class ParticleFilter(BeliefFilter):
         index = torch.searchsorted(cumulative, positions).clamp_max(K - 1)
         chosen = torch.gather(particles, -2, index.unsqueeze(-1).expand(B, N, K, d))
         # The spread is taken before resampling: after a collapse onto few particles the resampled set has
-        # next to none, and the roughening is what gives it back.
-        centre = weighted_mean(particles, weights, self.model.angle)
-        spread = residual(particles, centre.unsqueeze(-2), self.model.angle)
+        # next to none, and the roughening is what gives it back. Max - min needs no centre but the heading's
+        # wrap: relative to the first particle.
+        spread = residual(particles, particles[..., :1, :], self.model.angle)
         extent = spread.amax(-2) - spread.amin(-2)
-        chosen = chosen + rough * (self.roughening * extent * K ** (-1.0 / d)).unsqueeze(-2)
+        jitter = (2.0 * rough - 1.0) * math.sqrt(3.0)
+        chosen = chosen + jitter * (self.roughening * extent * K ** (-1.0 / d)).unsqueeze(-2)
         particles = torch.where(low[..., None, None], chosen, particles)
         weights = torch.where(low[..., None], torch.full_like(weights, 1.0 / K), weights)
         return self._summary(self.clip(particles), weights)
