@@ -10,18 +10,21 @@ from aia.modules.exploration import (
     exploring,
 )
 from aia.modules.population_acting import PopulationQPolicy
-from aia.modules.q_networks import ADFQNetwork, make_q_network, make_qvalue_actor
+from aia.modules.q_networks import ADFQNetwork, ConvQNetwork, ConvTorso, make_q_network, make_qvalue_actor
 from aia.modules.snapshots import SnapshotPolicy, parameter_snapshot
-from aia.modules.stacked import StackedQNetwork
+from aia.modules.stacked import StackedConvQNetwork, StackedQNetwork
 
 __all__ = [
     "ALGORITHMS",
     "EXPLORATIONS",
     "ADFQNetwork",
+    "ConvQNetwork",
+    "ConvTorso",
     "EpsilonGreedy",
     "LinearEpsilon",
     "PopulationQPolicy",
     "SnapshotPolicy",
+    "StackedConvQNetwork",
     "StackedQNetwork",
     "check_exploration",
     "exploring",

@@ -1,7 +1,8 @@
-"""Q-networks for the tracking env: a plain MLP (DQN, Double DQN) and a mean/log-sd MLP (ADFQ).
+"""Q-networks for the tracking env: a plain MLP (DQN, Double DQN), a mean/log-sd MLP (ADFQ), and either of them
+behind a convolutional torso over a map image (:class:`ConvQNetwork`).
 
-Both map the transformed env's ``observation`` ``[..., 6N+2]`` to one output per motion primitive.
-:func:`make_qvalue_actor` wraps either network into a TorchRL policy: a ``TensorDictModule`` that writes
+The MLPs map the transformed env's ``observation`` ``[..., 6N+2]`` to one output per motion primitive.
+:func:`make_qvalue_actor` wraps any of them into a TorchRL policy: a ``TensorDictModule`` that writes
 ``action_value`` (and, for ADFQ, ``action_log_sd``) followed by TorchRL's ``QValueModule``, which writes
 the greedy ``action`` (an integer index for the ``Categorical`` action spec) and ``chosen_action_value``
 (``[..., 1]``, the value of that action).
@@ -17,6 +18,13 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import Tensor, nn
 from torchrl.data import Categorical, Composite, TensorSpec
 from torchrl.modules import MLP, QValueModule
+
+from aia.config.checks import check_number, require
+
+OBSERVATION_KEY, MAP_KEY = "observation", "local_map"
+# the authors' conv layers (filters, kernel, stride) for ttenv's map observations (ADFQ's cnn_plus_mlp, ReLU,
+# TensorFlow's "SAME" padding, no pooling): 28 x 28 -> 4 x 7 x 7 -> 8 x 4 x 4, 128 features
+CONV_LAYERS: tuple[tuple[int, int, int], ...] = ((4, 8, 4), (8, 4, 2))
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}
 
@@ -84,6 +92,70 @@ class ADFQNetwork(nn.Module):
         return mean, log_sd.clamp(self.log_sd_min, self.log_sd_max)
 
 
+def same_padding(size: int, kernel: int, stride: int) -> tuple[int, int, int]:
+    """TensorFlow's ``"SAME"`` padding of one spatial dim: ``(before, after, output size)``, the output
+    ``ceil(size / stride)`` and the odd cell of the padding after (the authors' networks are TensorFlow's)."""
+    out = -(-size // stride)
+    total = max((out - 1) * stride + kernel - size, 0)
+    return total // 2, total - total // 2, out
+
+
+class ConvTorso(nn.Sequential):
+    """Convolutions over a ``[..., channels, im_size, im_size]`` map image, each padded as TensorFlow's
+    ``"SAME"`` and followed by the activation; :attr:`out_features` per image (flattened channel-major).
+
+    ``layers``: ``(filters, kernel, stride)`` per convolution (default: the authors', :data:`CONV_LAYERS`).
+    A channel count or image size below 1 is refused with a one-line :class:`~aia.config.errors.ConfigError`.
+    """
+
+    def __init__(self, channels: int, im_size: int, layers: Sequence[Sequence[int]] = CONV_LAYERS,
+                 activation: str = "relu") -> None:
+        check_number("local_map.channels", channels, ge=1, integer=True)
+        check_number("local_map.im_size", im_size, ge=1, integer=True)
+        layers = [list(layer) for layer in layers]
+        require(len(layers) > 0 and all(len(layer) == 3 and all(isinstance(v, int) and not isinstance(v, bool)
+                                                                and v >= 1 for v in layer) for layer in layers),
+                "conv_layers", layers, "a non-empty list of [filters, kernel, stride], each an integer >= 1")
+        modules: list[nn.Module] = []
+        size = im_size
+        for filters, kernel, stride in layers:
+            before, after, size = same_padding(size, kernel, stride)
+            modules += [nn.ZeroPad2d((before, after, before, after)), nn.Conv2d(channels, filters, kernel, stride),
+                        _activation(activation)()]
+            channels = filters
+        super().__init__(*modules)
+        self.out_features = channels * size * size
+
+    def convolutions(self) -> list[nn.Conv2d]:
+        """The convolutions, first to last."""
+        return [module for module in self if isinstance(module, nn.Conv2d)]
+
+
+class ConvQNetwork(nn.Module):
+    """A Q-network over a map image and the belief features: ``head(cat(torso(local_map), observation))``.
+
+    ``torso``: a :class:`ConvTorso`; ``head``: an MLP (:func:`make_q_network`) or an :class:`ADFQNetwork` whose
+    input is the torso's features followed by the ``F`` belief features (the authors' order), so the output is
+    the head's: Q-values ``[..., A]``, or ADFQ's ``(mean, log_sd)``. Inputs: ``observation`` ``[..., F]`` and
+    ``local_map`` ``[..., C, H, W]`` with the same leading dims (:attr:`in_keys`: the tensordict keys, read by
+    :func:`make_qvalue_actor`). All ``C`` channels enter the torso (the authors' network took only the first
+    ``H * W`` values of ttenv v5's flattened 5-channel image as its one channel).
+    """
+
+    in_keys = (OBSERVATION_KEY, MAP_KEY)
+
+    def __init__(self, torso: ConvTorso, head: nn.Module) -> None:
+        super().__init__()
+        self.torso = torso
+        self.head = head
+
+    def forward(self, observation: Tensor, local_map: Tensor) -> Tensor | tuple[Tensor, Tensor]:
+        """The head's output on the torso's features of ``local_map`` and ``observation``."""
+        *batch, channels, height, width = local_map.shape
+        features = self.torso(local_map.reshape(-1, channels, height, width)).reshape(*batch, -1)
+        return self.head(torch.cat([features, observation], dim=-1))
+
+
 def _unbatched_categorical(action_spec: TensorSpec) -> Categorical:
     """The per-world ``Categorical`` spec of a (possibly batched, possibly composite) action spec."""
     if isinstance(action_spec, Composite):
@@ -115,9 +187,10 @@ class _DirectOutputModule(TensorDictModule):
 
 
 def make_qvalue_actor(
-    network: nn.Module, action_spec: TensorSpec, in_key: str = "observation", adfq: bool = False
+    network: nn.Module, action_spec: TensorSpec, in_key: str = OBSERVATION_KEY, adfq: bool = False
 ) -> TensorDictSequential:
-    """A greedy Q-value policy: ``network`` on ``in_key`` then TorchRL's ``QValueModule``.
+    """A greedy Q-value policy: ``network`` on ``in_key`` (or on the keys a network with ``in_keys`` names, e.g.
+    :class:`ConvQNetwork`'s) then TorchRL's ``QValueModule``.
 
     Writes ``action_value`` (the Q-values, or the ADFQ means), for ADFQ also ``action_log_sd``, then
     ``action`` (argmax index, int64, shape = batch shape) and ``chosen_action_value`` (``[..., 1]``).
@@ -126,5 +199,6 @@ def make_qvalue_actor(
     ``QValueModule`` needs to accept any leading batch shape (a batched spec makes it expect ``[B, B]``).
     """
     out_keys = ["action_value", "action_log_sd"] if adfq else ["action_value"]
-    value_module = _DirectOutputModule(network, in_keys=[in_key], out_keys=out_keys)
+    in_keys = list(getattr(network, "in_keys", [in_key]))
+    value_module = _DirectOutputModule(network, in_keys=in_keys, out_keys=out_keys)
     return TensorDictSequential(value_module, QValueModule(spec=_unbatched_categorical(action_spec)))

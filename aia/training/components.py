@@ -16,33 +16,53 @@ from torchrl.record.loggers.csv import CSVLogger
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.logging.segments import RESUMED_AFTER_KEY, next_segment
 from aia.losses import ADFQLoss, use_memberwise_double
-from aia.modules import ADFQNetwork, StackedQNetwork, make_q_network
-from aia.modules.q_networks import make_qvalue_actor
+from aia.modules import ADFQNetwork, ConvQNetwork, ConvTorso, StackedConvQNetwork, StackedQNetwork, make_q_network
+from aia.modules.q_networks import MAP_KEY, make_qvalue_actor
 
 
-def make_network(cfg: DictConfig, obs_dim: int, num_actions: int) -> nn.Module:
-    """One member's Q-network (MLP, or the ADFQ mean/log-sd network), initialised from torch's global RNG."""
+def map_shape(observation_spec) -> tuple[int, int, int] | None:
+    """``(C, H, W)`` of the observation's map image (its ``local_map`` key), or ``None`` without one."""
+    return tuple(observation_spec[MAP_KEY].shape[-3:]) if MAP_KEY in observation_spec else None
+
+
+def make_network(cfg: DictConfig, obs_dim: int, num_actions: int,
+                 map_image: tuple[int, int, int] | None = None) -> nn.Module:
+    """One member's Q-network (MLP, or the ADFQ mean/log-sd network), initialised from torch's global RNG; with a
+    map image ``(C, H, W)`` (:func:`map_shape`), that network as the head of a :class:`~aia.modules.ConvQNetwork`
+    whose torso (``cfg.conv_layers``, made first) reads the image."""
+    torso = None
+    if map_image is not None:
+        channels, height, width = map_image
+        if height != width:
+            raise ValueError(f"the map image must be square, got {height} x {width}")
+        torso = ConvTorso(channels, height, [tuple(layer) for layer in cfg.conv_layers])
+        obs_dim += torso.out_features
     hidden = tuple(cfg.hidden)
     if cfg.algo.name == "adfq":
-        return ADFQNetwork(obs_dim, num_actions, hidden, var_min=cfg.algo.var_min, sd_max=cfg.algo.sd_max)
-    return make_q_network(obs_dim, num_actions, hidden)
+        head = ADFQNetwork(obs_dim, num_actions, hidden, var_min=cfg.algo.var_min, sd_max=cfg.algo.sd_max)
+    else:
+        head = make_q_network(obs_dim, num_actions, hidden)
+    return head if torso is None else ConvQNetwork(torso, head)
 
 
 def make_actor(cfg: DictConfig, env) -> TensorDictSequential:
     """The greedy Q-value actor of one run for ``env``'s observation (what ``aia-eval`` loads a checkpoint into)."""
-    network = make_network(cfg, env.observation_spec["observation"].shape[-1], env.action_spec.n)
+    network = make_network(cfg, env.observation_spec["observation"].shape[-1], env.action_spec.n,
+                           map_shape(env.observation_spec))
     return make_qvalue_actor(network.to(cfg.device), env.action_spec, adfq=cfg.algo.name == "adfq")
 
 
-def make_stacked_network(cfgs: Sequence[DictConfig], obs_dim: int, num_actions: int) -> StackedQNetwork:
+def make_stacked_network(cfgs: Sequence[DictConfig], obs_dim: int, num_actions: int,
+                         map_image: tuple[int, int, int] | None = None) -> StackedQNetwork | StackedConvQNetwork:
     """The members' networks stacked, member ``k`` initialised under ``torch.manual_seed(cfgs[k].seed)``
     (the initialisation a population of one with that seed gets), the inner layers' matmuls in
-    ``cfg.inner_dtype``."""
+    ``cfg.inner_dtype``; with a map image, conv networks (:func:`make_network`)."""
     networks = []
     for cfg in cfgs:
         torch.manual_seed(cfg.seed)
-        networks.append(make_network(cfg, obs_dim, num_actions))
-    return StackedQNetwork.stack(networks, getattr(torch, cfgs[0].inner_dtype)).to(cfgs[0].device)
+        networks.append(make_network(cfg, obs_dim, num_actions, map_image))
+    stacked = StackedQNetwork if map_image is None else StackedConvQNetwork
+    return stacked.stack(networks, getattr(torch, cfgs[0].inner_dtype)).to(cfgs[0].device)
 
 
 def make_loss(cfgs: Sequence[DictConfig], actor: TensorDictSequential) -> LossModule:
