@@ -43,7 +43,7 @@ from aia.envs import make_env
 from aia.evaluation import episode_scores, run_episodes
 from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy
 from aia.policies import RandomPolicy
-from aia.timing import synchronize
+from aia.runtime.timing import synchronize
 
 REFERENCE_BUDGET = 1.0  # seconds per call (the reference's ARVI)
 BASELINE_COMMIT = "54a9a5a"  # the planner before issue 16 (aia/planners/arvi.py)

@@ -32,7 +32,7 @@ from pathlib import Path
 import torch
 
 from aia.envs import make_env
-from aia.timing import synchronize
+from aia.runtime.timing import synchronize
 
 SETTINGS = ("empty1", "obstacles1", "small2", "small3")
 # One case per belief filter: kf, the UKF over [x, y, theta] and [x, y, theta, v, w], particles K = 256, 1024.

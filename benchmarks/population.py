@@ -82,7 +82,7 @@ from aia.envs import make_env
 from aia.logging.mcap_logger import git_state
 from aia.modules import make_q_network
 from aia.modules.q_networks import make_qvalue_actor
-from aia.timing import sgemm_gflops, synchronize
+from aia.runtime.timing import sgemm_gflops, synchronize
 from aia.training import train_population
 from aia.training.components import make_loss, make_stacked_network
 

@@ -31,7 +31,7 @@ from population import ROWS, member_configs
 from torch.profiler import ProfilerActivity, profile
 
 from aia.logging.mcap_logger import git_state
-from aia.timing import synchronize
+from aia.runtime.timing import synchronize
 from aia.training import train_population
 from aia.training.optimizer import Updater
 

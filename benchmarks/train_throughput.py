@@ -10,7 +10,7 @@
    every episode, ``eval.per_rollout`` of them played per batched rollout), eager and with every
    ``compile.*`` switch on: frames per second of the updating frames (the bulk of a long run; median of
    ``--repeats`` jobs of ``--loop-frames`` frames, ``measure_loop``), with the split of a frame's time over
-   the loop's phases (``aia.timing.PhaseTimer``: collect, buffer, update, evaluate, other); also the wall
+   the loop's phases (``aia.runtime.timing.PhaseTimer``: collect, buffer, update, evaluate, other); also the wall
    time of a whole job and of the first (compiling) job.
 
 The virtual machines we measure on vary by up to 2x over minutes: the JSON keeps the loop's rate of every
@@ -40,7 +40,7 @@ from torchrl.objectives import HardUpdate
 
 from aia.envs import make_env
 from aia.modules.q_networks import make_qvalue_actor
-from aia.timing import synchronize
+from aia.runtime.timing import synchronize
 from aia.training import train
 from aia.training.components import make_loss, make_stacked_network
 from aia.training.optimizer import StackedAdam, Updater
@@ -99,9 +99,9 @@ def measure_loop(algo: str, device: str, frames: int, compile: bool, repeats: in
     is reported. Then ``repeats`` jobs of ``frames`` frames and one of only the warm-up (random actions, no
     updates; it runs about twice as fast). The rate of the updating frames (one update each, evaluations
     included) is theirs over a job's time minus the warm-up job's and minus the job's first optimiser step
-    (the ``first_update`` phase: each job compiles its own, ``aia.compiling.compiled_update``): the rate of
+    (the ``first_update`` phase: each job compiles its own, ``aia.runtime.compiling.compiled_update``): the rate of
     the bulk of a long run. The median job also gives the split of an updating frame's time over the loop's
-    phases (its ``aia.timing.PhaseTimer`` totals minus the warm-up job's: collect, buffer, update, evaluate,
+    phases (its ``aia.runtime.timing.PhaseTimer`` totals minus the warm-up job's: collect, buffer, update, evaluate,
     other) and the wall time of a whole job.
     """
     exploration = "thompson" if algo == "adfq" else "egreedy"

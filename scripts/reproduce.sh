@@ -4,7 +4,7 @@
 # aia-log stats ($FIGURES/<setting>_stats.md, from 4 seeds per learner on) and a Fig. 3-style trajectory
 # picture of a learned ADFQ-TS policy. Everything is logged to MCAP under $OUT; each phase prints its wall time
 # and appends it to $OUT/wall_time.tsv, and the machine's float32 matmul rate at the start and at the end goes to
-# $OUT/machine.tsv (GFLOP/s, python3 -m aia.timing): a shared VM's speed swings, and wall times compare only
+# $OUT/machine.tsv (GFLOP/s, python3 -m aia.runtime.timing): a shared VM's speed swings, and wall times compare only
 # with it.
 #
 #   scripts/reproduce.sh                                  # the whole protocol (hours on a laptop CPU)
@@ -111,7 +111,7 @@ mkdir -p "$OUT" "$FIGURES"
 # machine_speed WHEN: record the machine's matmul rate now in $OUT/machine.tsv (nan if it cannot be measured)
 machine_speed() {
   local gflops
-  gflops=$(python3 -m aia.timing 2>/dev/null || echo nan)
+  gflops=$(python3 -m aia.runtime.timing 2>/dev/null || echo nan)
   echo "-- machine: sgemm $gflops GFLOP/s ($1)"
   printf 'sgemm_gflops_%s\t%s\n' "$1" "$gflops" >> "$OUT/machine.tsv"
 }

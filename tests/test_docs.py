@@ -52,7 +52,7 @@ EXCLUDED = [
     (r"^aia-log (plot|render|stats|scalars '|<command>)", "needs a sweep's logs, draws figures, or is a "
                                                           "placeholder: tests/apps/test_log_cli.py covers each "
                                                           "command"),
-    (r"^python -m aia\.timing$", "measures the matmul rate for seconds: tests/test_timing.py"),
+    (r"^python -m aia\.runtime\.timing$", "measures the matmul rate for seconds: tests/runtime/test_timing.py"),
     (r"^python benchmarks/", "a benchmark runs for minutes; its figures are in benchmarks/results/"),
 ]
 

@@ -32,9 +32,9 @@ from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
-from aia.memory import keep_freed_memory
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
+from aia.runtime.memory import keep_freed_memory
 from aia.training import make_actor
 from aia.training.members import check_population
 

@@ -18,8 +18,8 @@ from omegaconf import DictConfig
 
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.config.validation import validate_train_config
-from aia.objective import search_objective
-from aia.timing import PhaseTimer
+from aia.evaluation import search_objective
+from aia.runtime.timing import PhaseTimer
 from aia.training import TrainingState, train, train_population
 from aia.training.checkpoint import CHECKPOINT_NAME
 from aia.training.stopping import StopOnSignals
@@ -27,7 +27,7 @@ from aia.training.stopping import StopOnSignals
 
 @hydra_app("aia-train", config_name="train", population="aia.apps.train.train_jobs")  # bad input: one line, exit 2
 def main(cfg: DictConfig) -> float:
-    """Entry point of ``aia-train``; returns the run's search objective (:mod:`aia.objective`)."""
+    """Entry point of ``aia-train``; returns the run's search objective (:func:`~aia.evaluation.search_objective`)."""
     validate_train_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     choices = HydraConfig.get().runtime.choices

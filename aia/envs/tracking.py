@@ -23,7 +23,6 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from aia import rng
-from aia.compiling import compiled
 from aia.envs import belief
 from aia.envs.belief_models import belief_model
 from aia.envs.config import TrackingConfig, belief_model_name
@@ -32,6 +31,7 @@ from aia.envs.filters import FILTERS, BeliefFilter
 from aia.envs.maps import load_map
 from aia.envs.sensing import MapGeometry, map_geometry
 from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, EvasiveTargets, SineTargets, TargetModel
+from aia.runtime.compiling import compiled
 
 
 class TargetTrackingEnv(EnvBase):

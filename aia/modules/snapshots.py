@@ -19,9 +19,9 @@ from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 
 from aia import rng
-from aia.compiling import compiled
 from aia.modules.exploration import exploring
 from aia.modules.stacked import StackedQNetwork
+from aia.runtime.compiling import compiled
 
 
 def parameter_snapshot(network: torch.nn.Module) -> dict[str, Tensor]:

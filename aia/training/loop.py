@@ -14,7 +14,7 @@ program, and a solo run is a population of one: the same loop, not a second copy
   replayed transitions computed once per copy, :class:`~aia.training.target_cache.TargetCache`);
 * is evaluated after every ``eval.every_episodes`` training episodes (``eval.episodes`` episodes at epsilon
   ``eval.epsilon``, scored as SPEC 9), ``eval.per_rollout`` evaluations of all members per rollout
-  (:class:`~aia.evaluator.Evaluator`);
+  (:class:`~aia.evaluation.Evaluator`);
 * logs to its own run log and writes its own checkpoint in its own run folder.
 
 Every random draw after the networks' initialisation is counter-based, so member ``k`` draws exactly what a
@@ -43,13 +43,12 @@ from torchrl.record.loggers import Logger
 from aia.config.errors import ConfigError
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
-from aia.evaluation import log_score_summary
-from aia.evaluator import Evaluator
+from aia.evaluation import Evaluator, log_score_summary
 from aia.logging import MCAPLogger
-from aia.memory import keep_freed_memory
 from aia.modules import PopulationQPolicy
 from aia.modules.q_networks import make_qvalue_actor
-from aia.timing import PhaseTimer
+from aia.runtime.memory import keep_freed_memory
+from aia.runtime.timing import PhaseTimer
 from aia.training.checkpoint import PopulationParts, load_member, member_checkpoint
 from aia.training.checkpoint_files import save_checkpoints
 from aia.training.components import (

@@ -31,7 +31,7 @@ from torch._dynamo.exc import BackendCompilerFailed
 from torch._inductor.exc import InductorError
 from torchrl.objectives import HardUpdate, LossModule
 
-from aia.compiling import compiled_update
+from aia.runtime.compiling import compiled_update
 
 
 class StackedAdam:
@@ -74,7 +74,7 @@ class Updater:
 
     ``compile=True`` runs :func:`update_step` through ``torch.compile`` (forward, backward, clipping and Adam
     fused, in one graph for one member and two for more; the first call compiles;
-    :func:`aia.compiling.compiled_update`: the loss module's settings must not change after that call); eager
+    :func:`aia.runtime.compiling.compiled_update`: the loss module's settings must not change after that call); eager
     and compiled agree up to float rounding. The hard target-network copy (``target_updater.step()``) stays
     outside the graphs; ``on_target_copy`` is called after each copy. If inductor fails to compile the step, the
     updater says so in one line and runs it eager from then on: a compiler bug must not end a run that eager

@@ -20,9 +20,9 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
-from aia.compiling import compiled_update
 from aia.losses import ADFQLoss
 from aia.modules import StackedQNetwork
+from aia.runtime.compiling import compiled_update
 from aia.training.replay import MemberReplay
 
 # Transitions per member that a write's targets are computed on, the first repeated to fill: the target network

@@ -14,8 +14,8 @@ from torch import Tensor
 from torchrl.data import Bounded, Composite
 from torchrl.envs.transforms import Transform
 
-from aia.compiling import compiled
 from aia.envs.dynamics import wrap_angle
+from aia.runtime.compiling import compiled
 
 _IN_KEYS = ("robot_pose", "robot_velocity", "belief_mean", "logdet_cov", "observed", "obstacle_polar")
 _VELOCITY_KEY = "belief_velocity"

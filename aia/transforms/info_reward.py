@@ -7,8 +7,8 @@ from tensordict import TensorDictBase
 from torch import Tensor
 from torchrl.envs.transforms import Transform
 
-from aia.compiling import compiled
 from aia.envs.config import RewardConfig
+from aia.runtime.compiling import compiled
 
 _IN_KEYS = ("logdet_cov", "observed", "obstacle_polar", "collision")
 

@@ -1,5 +1,5 @@
 """Optuna search through ``aia-train -m hydra/sweeper=paper_search``: each trial returns its objective
-(aia.objective) and the study's best trial is the one whose run scored highest."""
+(aia.evaluation.search_objective) and the study's best trial is the one whose run scored highest."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 import yaml
 from hydra import compose, initialize_config_module
 
+from aia.evaluation import search_objective
 from aia.logging import read_run
-from aia.objective import search_objective
 
 TRIALS = 4
 

@@ -19,8 +19,8 @@ import pytest
 import torch
 import yaml
 
+from aia.evaluation import search_objective
 from aia.logging import read_run
-from aia.objective import search_objective
 from tests.cluster.conftest import TEST_RESOURCES
 
 pytestmark = pytest.mark.xdist_group("slurm")  # one worker: the cluster is started once

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from aia.envs import make_env
-from aia.evaluator import Evaluator
+from aia.evaluation import Evaluator
 from aia.modules import StackedQNetwork, make_q_network
 
 E = 3  # episodes per evaluation

@@ -22,7 +22,8 @@ import torch
 from torch import Tensor
 from torchrl.envs import EnvBase
 
-from aia.evaluation import evaluation_summary, run_episodes
+from aia.evaluation.rollouts import run_episodes
+from aia.evaluation.scores import evaluation_summary
 from aia.logging import SceneRecorder
 from aia.modules import SnapshotPolicy, StackedQNetwork, parameter_snapshot
 
@@ -94,7 +95,7 @@ class Evaluator:
 
     def flush(self) -> list[tuple[EvaluationPoint, list[dict]]]:
         """Play the pending evaluations, ``per_rollout`` per rollout; each with one
-        :func:`~aia.evaluation.evaluation_summary` per member, in the order they were asked for."""
+        :func:`~aia.evaluation.scores.evaluation_summary` per member, in the order they were asked for."""
         points, self.pending = self.pending, []
         results = []
         for start in range(0, len(points), self.per_rollout):

@@ -1,6 +1,6 @@
 """Where a loop's wall-clock time goes (seconds accumulated per named phase), and how fast the machine is now.
 
-``python -m aia.timing`` prints the machine's float32 matmul rate (:func:`sgemm_gflops`) in GFLOP/s.
+``python -m aia.runtime.timing`` prints the machine's float32 matmul rate (:func:`sgemm_gflops`) in GFLOP/s.
 """
 
 from __future__ import annotations

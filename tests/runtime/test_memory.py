@@ -6,7 +6,7 @@ import resource
 
 import torch
 
-from aia.memory import keep_freed_memory
+from aia.runtime.memory import keep_freed_memory
 
 _ELEMENTS = 2**20  # float32s of one tensor: 4 MiB, 1,024 pages
 _LIVE = 10  # tensors alive at once, then all freed (as a training step's temporaries are)

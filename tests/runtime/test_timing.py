@@ -1,4 +1,4 @@
-"""aia.timing: phase totals with a fake clock, in place in the dict given, the summary line, and the machine's
+"""aia.runtime.timing: phase totals with a fake clock, in place in the dict given, the summary line, and the machine's
 matmul rate."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from aia import timing
-from aia.timing import PhaseTimer
+from aia.runtime import timing
+from aia.runtime.timing import PhaseTimer
 
 
 @pytest.fixture
@@ -52,6 +52,6 @@ def test_sgemm_rate_counts_two_flops_per_multiply_add(monkeypatch):
 
 
 def test_python_m_aia_timing_prints_a_positive_rate():
-    result = subprocess.run([sys.executable, "-m", "aia.timing"], capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-m", "aia.runtime.timing"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert float(result.stdout) > 0

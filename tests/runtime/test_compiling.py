@@ -1,4 +1,4 @@
-"""aia.compiling: private compiled copies keep their own cache, guarded only on tensors and global state; the
+"""aia.runtime.compiling: private compiled copies keep their own cache, guarded only on tensors and global state; the
 libraries' compile-time deprecation notices stay out of the console."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 import torch
 from torch import nn
 
-from aia.compiling import compiled_update, private_copy, quiet_library_notices
+from aia.runtime.compiling import compiled_update, private_copy, quiet_library_notices
 
 
 class Scaled(nn.Module):
@@ -72,9 +72,9 @@ def test_the_libraries_compile_notices_are_silenced_and_other_warnings_are_not()
 
 
 def test_importing_the_module_installs_the_filters():
-    """Outside pytest (which drops filters installed during collection): a process that imports aia.compiling
-    prints no notice of :data:`~aia.compiling.LIBRARY_NOTICES`, and still prints other FutureWarnings."""
-    code = ("import warnings, aia.compiling\n"
+    """Outside pytest (which drops filters installed during collection): a process that imports aia.runtime.compiling
+    prints no notice of :data:`~aia.runtime.compiling.LIBRARY_NOTICES`, and still prints other FutureWarnings."""
+    code = ("import warnings, aia.runtime.compiling\n"
             "for message in ('torch._dynamo.config.inline_inbuilt_nn_modules is deprecated', 'another notice'):\n"
             "    warnings.warn_explicit(message, FutureWarning, 'tensordict/utils.py', 1, module='tensordict.utils')\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

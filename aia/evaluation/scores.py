@@ -1,14 +1,15 @@
-"""Episode scores (SPEC 9) from rollout tensordicts."""
+"""Scores: an episode's (SPEC 9) from a rollout tensordict, an evaluation's summary, and a run's search objective."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torch import Tensor
-from torchrl.envs import EnvBase
 from torchrl.record.loggers import Logger
+
+from aia.logging.curves import tail_mean
 
 
 def episode_scores(rollout: TensorDictBase) -> Tensor:
@@ -50,11 +51,11 @@ def log_score_summary(logger: Logger, summary: dict, frame: int) -> None:
         logger.log_scalar("eval/belief_error", summary["belief_error"], step=frame)
 
 
-def run_episodes(env: EnvBase, policy: Callable[[TensorDictBase], TensorDictBase], seed: int | None = None
-                 ) -> TensorDictBase:
-    """One episode in every world of ``env`` under ``policy``: a ``[B, T]`` rollout from a fresh reset."""
-    if seed is not None:
-        env.set_seed(seed)
-    max_steps = env.base_env.config.max_steps if hasattr(env, "base_env") else env.config.max_steps
-    with torch.no_grad():
-        return env.rollout(max_steps, policy=policy, break_when_any_done=False)
+def search_objective(eval_scores: Sequence[float]) -> float:
+    """What an ``aia-train`` run returns to a Hydra sweeper (optuna search: ``hydra/sweeper=``): the mean of the
+    last 10 % of ``eval_scores`` (at least one), the level the policy has reached at the end of training, less
+    noisy than the final evaluation alone and the same "end of training" level that ``aia-log plot`` tables
+    report (:func:`aia.logging.curves.tail_mean`). Higher is better, so a search maximises it
+    (``hydra/sweeper=paper_search``). NaN for a run that never evaluated, which optuna records as a failed trial
+    rather than a score."""
+    return tail_mean(list(eval_scores))

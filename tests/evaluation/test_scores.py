@@ -1,4 +1,4 @@
-"""Episode scores (SPEC 9)."""
+"""aia.evaluation.scores: episode scores (SPEC 9), belief errors, summaries and the search objective."""
 
 from __future__ import annotations
 
@@ -9,7 +9,14 @@ import torch
 from tensordict import TensorDict
 
 from aia.envs import make_env
-from aia.evaluation import belief_errors, episode_scores, evaluation_summary, run_episodes, score_summary
+from aia.evaluation import (
+    belief_errors,
+    episode_scores,
+    evaluation_summary,
+    run_episodes,
+    score_summary,
+    search_objective,
+)
 from aia.policies import RandomPolicy
 
 
@@ -17,15 +24,6 @@ def test_episode_score_is_the_sum_of_minus_mean_logdet():
     logdet = torch.tensor([[[1.0, 3.0], [2.0, 2.0], [0.0, -4.0]]])  # [B=1, T=3, N=2]
     td = TensorDict({"next": {"logdet_cov": logdet}}, batch_size=[1, 3])
     assert episode_scores(td).tolist() == [-(2.0 + 2.0 - 2.0)]
-
-
-def test_run_episodes_covers_one_episode_per_world_and_is_seeded():
-    env = make_env("empty1", batch_size=3, seed=0, overrides=["max_steps=25"])
-    first = run_episodes(env, RandomPolicy(12, seed=1), seed=5)
-    again = run_episodes(env, RandomPolicy(12, seed=1), seed=5)
-    assert first.shape == (3, 25)
-    assert first["next", "truncated"][:, -1].all() and not first["next", "truncated"][:, :-1].any()
-    assert torch.equal(episode_scores(first), episode_scores(again))
 
 
 def test_score_summary_is_the_mean_and_population_std():
@@ -48,3 +46,18 @@ def test_belief_error_of_a_real_rollout_is_finite_and_positive():
     env = make_env("empty1", batch_size=2, seed=0, overrides=["max_steps=10"])
     errors = belief_errors(run_episodes(env, RandomPolicy(12, seed=1), seed=3))
     assert errors.shape == (2,) and torch.isfinite(errors).all() and (errors > 0).all()
+
+
+# ------------------------------------------------ the objective a run returns to a sweeper
+@pytest.mark.parametrize("scores, expected", [
+    ([5.0], 5.0),                              # a single evaluation is its own tail
+    ([1.0, 2.0, 3.0], 3.0),                    # under 10 evaluations: the last one
+    (list(range(20)), 18.5),                   # 20 evaluations: the mean of the last 2
+    ([0.0] * 90 + [10.0] * 9 + [-80.0], 1.0),  # 100 evaluations: the last 10, a late drop included
+])
+def test_the_objective_is_the_mean_of_the_last_tenth(scores, expected):
+    assert search_objective(scores) == pytest.approx(expected)
+
+
+def test_a_run_without_evaluations_has_no_objective():
+    assert math.isnan(search_objective([]))

@@ -1,0 +1,3 @@
+"""How aia runs on the machine: ``compiling`` (torch.compile with raised recompile limits, the optimiser step's
+private compiled copies), ``memory`` (keep_freed_memory: glibc keeps freed blocks), ``timing`` (PhaseTimer: seconds
+per phase of a loop; the machine's matmul rate, ``python -m aia.runtime.timing``)."""
