@@ -82,7 +82,9 @@ class Choice:
 class Flag:
     """A boolean."""
 
-    allowed: str = "true or false"
+    @property
+    def allowed(self) -> str:
+        return "true or false"
 
     def __call__(self, key: str, value: Any) -> None:
         require(isinstance(value, bool), key, value, self.allowed)
@@ -92,7 +94,9 @@ class Flag:
 class Device:
     """A torch device that this machine has (``cpu``, ``cuda``, ``cuda:1``, ``mps``)."""
 
-    allowed: str = "a torch device such as cpu, cuda or cuda:0"
+    @property
+    def allowed(self) -> str:
+        return "a torch device such as cpu, cuda or cuda:0"
 
     def __call__(self, key: str, value: Any) -> None:
         try:
@@ -114,7 +118,9 @@ class Device:
 class Widths:
     """A non-empty list of layer widths, each an integer >= 1."""
 
-    allowed: str = "a non-empty list of layer widths >= 1, e.g. [128, 128, 128]"
+    @property
+    def allowed(self) -> str:
+        return "a non-empty list of layer widths >= 1, e.g. [128, 128, 128]"
 
     def __call__(self, key: str, value: Any) -> None:
         widths = _plain_list(value)
@@ -160,10 +166,3 @@ def check_choice(key: str, value: Any, choices: Iterable[Any], source: str | Non
 def check_flag(key: str, value: Any) -> None:
     """``value`` is a boolean."""
     Flag()(key, value)
-
-
-def check_device(key: str, value: Any) -> None:
-    """``value`` names a torch device that this machine has."""
-    Device()(key, value)
-
-

@@ -58,8 +58,8 @@ def _changed(cfg: DictConfig, key: str) -> DictConfig:
         new = value + "x"
     elif value is None:
         new = 2 if key == "threads" else "x"
-    else:  # a list
-        new = [*value, 8]
+    else:  # a list: one more of its last entry
+        new = [*value, value[-1]]
     other = cfg.copy()
     OmegaConf.update(other, key, new)
     return other
