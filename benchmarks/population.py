@@ -24,7 +24,17 @@
 2. The vmap alternative: one update of P members of the 3 x 128 DQN by ``torch.vmap`` over TorchRL's
    ``DQNLoss`` with the members' parameters stacked and entered with ``to_module``, against the stacked
    network inside one ``DQNLoss`` (what the loop uses), eager, P = 1 and 20.
-3. Before populations: ``--baseline REV`` runs ``benchmarks/train_throughput.py --parts loop`` of the commit
+3. Convolutional Q-networks (``--conv 1,20``, the default): the ttenv v4 network (a 1 x 28 x 28 map image
+   through the conv torso of ``conf/train.yaml``'s ``conv_layers``, with the 1-target belief features into the
+   3 x 128 DQN head), member-frames per second of the network's share of a frame in the paper's regime: one
+   greedy forward on the member's world, then one update of a batch of 64 (``aia.training.optimizer.Updater``:
+   TorchRL's ``DQNLoss``, clipping, Adam, the target copy every 50 updates), on random maps and features. The
+   env emits no map observation yet, so these rows leave out the env, the replay and the evaluations of the
+   population rows. ``--conv-alternatives`` times the ways of stacking the members' conv networks: grouped
+   convolutions (``aia.modules.StackedConvQNetwork``), ``torch.vmap`` over the solo network with
+   ``torch.func.stack_module_state``, and a loop over the members, for a batch of 64 per member (forward and
+   backward) and for acting on 4,096 worlds split among the members (forward).
+4. Before populations: ``--baseline REV`` runs ``benchmarks/train_throughput.py --parts loop`` of the commit
    ``REV`` (the solo loop before this change, extracted with ``git archive``) and of the working tree, in the
    same run, so that P = 1 of the new loop is compared with the old loop on the same machine the same hour.
 
@@ -52,6 +62,7 @@ and after, so a row can be set beside the VM's hour and the code it measured.
     python benchmarks/population.py --algos adfq --modes compiled --members 1,5 --inner-dtypes float32,bfloat16
     python benchmarks/population.py --algos dqn --modes compiled --members 1,20 --repeats 3 --frames 600
     python benchmarks/population.py --device cuda --modes eager --members 1,20,80,320 --count-syncs 4
+    python benchmarks/population.py --algos "" --conv 1,20 --repeats 5 --conv-alternatives
 """
 
 from __future__ import annotations
@@ -59,6 +70,7 @@ from __future__ import annotations
 import argparse
 import collections
 import datetime
+import functools
 import itertools
 import json
 import os
@@ -76,19 +88,24 @@ from pathlib import Path
 import torch
 from hydra import compose, initialize_config_module
 from tensordict import TensorDict
-from torchrl.objectives import DQNLoss
+from torchrl.data import Categorical
+from torchrl.objectives import DQNLoss, HardUpdate
 
 from aia.envs import make_env
 from aia.logging.mcap_logger import git_state
-from aia.modules import make_q_network
+from aia.modules import StackedConvQNetwork, make_q_network
 from aia.modules.q_networks import make_qvalue_actor
 from aia.runtime.timing import sgemm_gflops, synchronize
 from aia.training import train_population
-from aia.training.components import make_loss, make_stacked_network
+from aia.training.components import make_loss, make_network, make_stacked_network
+from aia.training.optimizer import StackedAdam, Updater
 
 ROWS = {"dqn": ("paper_empty1", "egreedy", 8, (128, 128, 128)), "adfq": ("paper_small3", "thompson", 20,
                                                                           (256, 256, 256))}
 NUM_ACTIONS, BATCH = 12, 64
+# the conv rows: ttenv v4's map image (channels, im_size) and belief features (1 target), acting worlds of the
+# alternatives' forward
+CONV_MAP, CONV_OBS, ACTING_WORLDS = (1, 28, 28), 8, 4096
 # the paper presets' replay buffer and target period (a copy every 50 updates: HardUpdate copies on the 51st)
 BUFFER_SIZE, TARGET_PERIOD = 1000, 51
 LOOP_SWITCHES = ("update", "env", "policy")
@@ -309,6 +326,97 @@ def measure_vmap_update(members: int, repeats: int = 30) -> dict:
     return result
 
 
+def _conv_batch(members: int, rows: int, seed: int = 0) -> TensorDict:
+    """``[members, rows]`` random transitions with ttenv v4's observation: belief features and a map image of
+    -1 (free) and 1 (occupied) cells, as ttenv scales it."""
+    generator = torch.Generator().manual_seed(seed)
+    shape = (members, rows)
+
+    def state() -> dict:
+        occupied = torch.rand(*shape, *CONV_MAP, generator=generator) < 0.2
+        return {"observation": torch.randn(*shape, CONV_OBS, generator=generator),
+                "local_map": occupied.float() * 2 - 1}
+
+    done = torch.zeros(*shape, 1, dtype=torch.bool)
+    return TensorDict({**state(), "action": torch.randint(NUM_ACTIONS, shape, generator=generator),
+                       "next": {**state(), "reward": torch.randn(*shape, 1, generator=generator), "done": done,
+                                "terminated": done.clone()}}, batch_size=shape)
+
+
+def measure_conv_network(members: int, compile: bool, steps: int, device: str = "cpu") -> dict:
+    """Member-frames per second of the conv DQN's work per frame (a greedy forward on one world per member and one
+    update of 64 transitions per member; part 3 of the module docstring), ``steps`` timed steps after 10 (the
+    first update compiles when ``compile``)."""
+    cfgs = member_configs("dqn", members, compile, 0, steps, device)
+    network = make_stacked_network(cfgs, CONV_OBS, NUM_ACTIONS, CONV_MAP)
+    loss = make_loss(cfgs, make_qvalue_actor(network, Categorical(NUM_ACTIONS, device=device)))
+    optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [c.lr for c in cfgs])
+    update = Updater(loss, optimizer, HardUpdate(loss, value_network_update_interval=cfgs[0].target_update_interval),
+                     cfgs[0].grad_clip, compile=compile)
+    batch = _conv_batch(members, BATCH).to(device)
+    acting = _conv_batch(members, 1, seed=1).to(device)
+    seconds = {"act": 0.0, "update": 0.0}
+
+    def step(timed: bool) -> None:
+        start = time.perf_counter()
+        with torch.no_grad():
+            network(acting["observation"], acting["local_map"]).argmax(-1)
+        synchronize(device)
+        middle = time.perf_counter()
+        update(batch.clone())
+        synchronize(device)
+        if timed:
+            seconds["act"] += middle - start
+            seconds["update"] += time.perf_counter() - middle
+
+    for _ in range(10):
+        step(False)
+    for _ in range(steps):
+        step(True)
+    return {"kind": "conv_network", "algo": "dqn", "network": "conv+" + "x".join(map(str, cfgs[0].hidden)),
+            "conv_layers": [list(layer) for layer in cfgs[0].conv_layers], "map": list(CONV_MAP),
+            "members": members, "compiled": compile, "device": device, "steps": steps,
+            "member_frames_per_s": members * steps / sum(seconds.values()),
+            "ms_per_step_by_phase": {phase: 1e3 * t / steps for phase, t in seconds.items()}}
+
+
+def measure_conv_alternatives(members: int, repeats: int = 20) -> dict:
+    """ms of the stacked conv DQN network of ``members`` members three ways: grouped convolutions
+    (:class:`~aia.modules.StackedConvQNetwork`), ``torch.vmap`` over the solo network with the members' parameters
+    from ``torch.func.stack_module_state``, and a loop over the solo networks; forward and backward of a batch of
+    64 per member, and a forward on 4,096 worlds split among the members."""
+    cfgs = member_configs("dqn", members, False, 0, 1, "cpu")
+    solos = []
+    for cfg in cfgs:
+        torch.manual_seed(cfg.seed)
+        solos.append(make_network(cfg, CONV_OBS, NUM_ACTIONS, CONV_MAP))
+    grouped = StackedConvQNetwork.stack(solos)
+    params, buffers = torch.func.stack_module_state(solos)
+    template = solos[0]
+
+    def member(member_params, member_buffers, observation, local_map):
+        return torch.func.functional_call(template, (member_params, member_buffers), (observation, local_map))
+
+    ways = {"grouped": grouped,
+            "vmap": lambda observation, local_map: torch.vmap(member)(params, buffers, observation, local_map),
+            "loop": lambda observation, local_map: torch.stack(
+                [solo(observation[k], local_map[k]) for k, solo in enumerate(solos)])}
+    update_batch, acting = _conv_batch(members, BATCH), _conv_batch(members, ACTING_WORLDS // members, seed=1)
+    result = {"kind": "conv_alternatives", "algo": "dqn", "members": members, "batch": BATCH,
+              "acting_worlds": members * (ACTING_WORLDS // members)}
+    def update(forward: Callable) -> None:
+        forward(update_batch["observation"], update_batch["local_map"]).square().sum().backward()
+
+    def act(forward: Callable) -> None:
+        with torch.no_grad():
+            forward(acting["observation"], acting["local_map"])
+
+    for name, forward in ways.items():
+        result[f"{name}_update_ms"] = _ms_per_call(functools.partial(update, forward), repeats, warmup=3)
+        result[f"{name}_act_ms"] = _ms_per_call(functools.partial(act, forward), max(1, repeats // 4), warmup=1)
+    return result
+
+
 def measure_solo_loops(baseline: str, frames: int, repeats: int) -> list[dict]:
     """``train_throughput.py --parts loop`` of commit ``baseline`` and of the working tree, one after the other."""
     rows = []
@@ -341,6 +449,11 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1,
                         help="rounds of every population size; rows give the median and the range, and the ratio "
                              "to P = 1 of the same round")
+    parser.add_argument("--conv", default="1,20", help="comma-separated population sizes of the conv network's rows "
+                        "(part 3 of the description; empty: none)")
+    parser.add_argument("--conv-steps", type=int, default=100, help="timed steps of each conv row")
+    parser.add_argument("--conv-alternatives", action="store_true",
+                        help="also time grouped convolutions, vmap and a loop over the members at P = 1 and 20")
     parser.add_argument("--baseline", default=None, help="git commit of the solo loop to compare P = 1 with")
     parser.add_argument("--count-syncs", type=int, default=0, metavar="P",
                         help="on CUDA: first count the host-device syncs of a P-member population's job, by site")
@@ -350,7 +463,8 @@ def main() -> None:
     modes = args.modes.split(",")
     if not set(modes) <= {"eager", "compiled"}:
         parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")
-    algos, dtypes = args.algos.split(","), args.inner_dtypes.split(",")
+    algos, dtypes = [algo for algo in args.algos.split(",") if algo], args.inner_dtypes.split(",")
+    conv_sizes = [int(p) for p in args.conv.split(",") if p]
     if not set(algos) <= set(ROWS):
         parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ROWS)}")
     if not set(dtypes) <= {"float32", "bfloat16"}:
@@ -412,6 +526,34 @@ def main() -> None:
                   f"{100 * row['share_of_sgemm_peak']:>17.1f}%{row['update_matmuls_ms']:>10.2f}  {phases}"
                   f" (collect alone {row['collect_alone_ms']:.2f})",
                   flush=True)
+    if conv_sizes:
+        print(f"\n{'algo':<6}{'network':<18}{'mode':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
+              f"{'x P=1 (range)':<16}  ms per step by phase  (conv rows: the network's act and update alone)")
+    for mode in modes if conv_sizes else ():
+        rounds = [{members: measure_conv_network(members, mode == "compiled", args.conv_steps, args.device)
+                   for members in conv_sizes} for _ in range(args.repeats)]
+        for members in conv_sizes:
+            row = _median_run([r[members] for r in rounds], [r.get(1) for r in rounds])
+            rows.append(row)
+            save()
+            rates, ratios = row["member_frames_per_s_runs"], row["speedup_over_p1_runs"]
+            spread = f" ({min(rates):,.0f}-{max(rates):,.0f})" if len(rates) > 1 else ""
+            speedup = f"{row['speedup_over_p1']:.1f}" if ratios else "-"
+            if len(ratios) > 1:
+                speedup += f" ({min(ratios):.1f}-{max(ratios):.1f})"
+            phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in row["ms_per_step_by_phase"].items())
+            print(f"{row['algo']:<6}{row['network']:<18}{mode:<10}{members:>4}{row['member_frames_per_s']:>17,.0f}"
+                  f"{spread:<16}{speedup:<16}  {phases}", flush=True)
+    if args.conv_alternatives:
+        print(f"\n{'conv stacking alternatives (DQN, eager)':<42}{'P':>4}"
+              f"{'update ms: grouped / vmap / loop':>36}{'act ms: grouped / vmap / loop':>34}")
+        for members in (1, 20):
+            row = measure_conv_alternatives(members)
+            rows.append(row)
+            save()
+            times = {kind: " / ".join(f"{row[f'{way}_{kind}_ms']:.1f}" for way in ("grouped", "vmap", "loop"))
+                     for kind in ("update", "act")}
+            print(f"{'':<42}{members:>4}{times['update']:>36}{times['act']:>34}", flush=True)
     if not on_gpu:  # the alternatives were weighed on the CPU (a GPU runs the loop's choice)
         print(f"\n{'update alternatives (DQN 3x128, batch 64, eager)':<50}{'P':>4}{'vmap(DQNLoss) ms':>18}"
               f"{'stacked network ms':>20}")

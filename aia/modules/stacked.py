@@ -159,12 +159,13 @@ class StackedConvQNetwork(nn.Module):
     The torsos' convolution ``i`` is one grouped convolution (``groups=P``, parameters ``conv_weight{i}``
     ``[P, out, in, k, k]`` and ``conv_bias{i}`` ``[P, out]``) over the members' images laid side by side in the
     channels (channels-last): member ``k``'s channels meet only member ``k``'s filters. The heads are one
-    :class:`StackedQNetwork` (``head``), its ``inner_dtype`` as there. Measured on the 2-core CPU (one thread,
-    the authors' torso over 28 x 28 x 1, forward and backward of batch 64 per member, other jobs running):
-    grouped channels-last 34-39 ms at P = 20 against 55-64 ms grouped in the default layout, about 60 ms for
-    ``torch.vmap`` over ``torch.func.stack_module_state``, 70 ms for a loop over the members and 65-75 ms for
-    patches (``unfold``) through ``baddbmm``; at P = 1 all of them take 3-5 ms (``benchmarks/population.py``
-    measures the alternatives: ``--conv-alternatives``).
+    :class:`StackedQNetwork` (``head``), its ``inner_dtype`` as there. Measured on the 2-core CPU with
+    ``benchmarks/population.py --conv-alternatives`` (the ttenv v4 DQN network, one thread, other jobs running,
+    three runs): forward and backward of 64 transitions per member at P = 20 took 66-85 ms grouped against
+    96-123 ms for ``torch.vmap`` over ``torch.func.stack_module_state`` and 103-190 ms for a loop over the
+    members; acting on 4,096 worlds, 79-92 ms against 116-165 (vmap) and 72-102 (loop); at P = 1 the three are
+    alike (7-10 and 48-92 ms). Channels-last: the torsos alone at P = 20, 34-39 ms against 55-64 ms in the
+    default layout.
     """
 
     in_keys = ConvQNetwork.in_keys
@@ -249,6 +250,10 @@ class StackedConvQNetwork(nn.Module):
         for i, (padding, stride) in enumerate(zip(self.paddings, self.strides, strict=True)):
             weight = getattr(self, f"conv_weight{i}").flatten(0, 1).contiguous(memory_format=torch.channels_last)
             bias = getattr(self, f"conv_bias{i}").flatten()
-            x = self.activation(F.conv2d(F.pad(x, padding), weight, bias, stride, groups=members))
+            # the convolution pads both sides alike (F.pad would copy the images); TensorFlow's odd cell after
+            before = padding[0]
+            if padding[1] != before:
+                x = F.pad(x, (0, padding[1] - before, 0, padding[3] - before))
+            x = self.activation(F.conv2d(x, weight, bias, stride, before, groups=members))
         features = x.reshape(count, members, -1).transpose(0, 1).reshape(members, *batch, -1)
         return self.head(torch.cat([features, observation], dim=-1))
