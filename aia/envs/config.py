@@ -18,7 +18,7 @@ from hydra.core.config_store import ConfigStore
 from aia.config.checks import check_choice, check_number, require
 from aia.envs.belief_models import BELIEF_MODELS, CONTROLS
 from aia.envs.filters import FILTERS
-from aia.envs.maps import check_start_margin, load_map
+from aia.envs.maps import RANDOM_MAP, RANDOM_SHAPES, check_start_margin, load_map
 from aia.envs.targets import TARGET_MODELS
 
 
@@ -151,9 +151,30 @@ class RewardConfig:
 
 
 @dataclass
+class RandomMapConfig:
+    """``map: random_obstacles``: a new obstacle layout per world and episode (aia.envs.map_generator)."""
+
+    # The map: [width, height] in metres, a whole number of resolution-sized cells (default: obstacles4's).
+    size: list[float] = field(default_factory=lambda: [36.2, 36.2])
+    resolution: float = 0.2
+    # Obstacles per layout, uniform in [min, max]; each one of shapes ("box", "l", "t"), its rectangles'
+    # lengths and widths uniform in [min, max] metres, turned by a uniform angle in +-rotation_deg.
+    num_obstacles: list[int] = field(default_factory=lambda: [4, 8])
+    shapes: list[str] = field(default_factory=lambda: ["box", "l", "t"])
+    length: list[float] = field(default_factory=lambda: [2.0, 8.0])
+    width: list[float] = field(default_factory=lambda: [0.6, 2.0])
+    rotation_deg: float = 180.0
+    # A layout whose connected start cells cover less than this fraction of the map is drawn again, up to
+    # attempts times (then the reset fails with a one-line error).
+    min_start_area: float = 0.25
+    attempts: int = 8
+
+
+@dataclass
 class TrackingConfig:
     """One tracking setting: world, robot, targets, sensor, belief, features and reward."""
 
+    # A map of conf/maps by name, a map .yaml by path, or "random_obstacles" (random_map's layouts).
     map: str = "empty"
     num_targets: int = 1
     max_steps: int = 100
@@ -169,6 +190,7 @@ class TrackingConfig:
     belief: BeliefConfig = field(default_factory=BeliefConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
+    random_map: RandomMapConfig = field(default_factory=RandomMapConfig)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -244,7 +266,38 @@ def validate(cfg: TrackingConfig) -> None:
         speeds = list(_get(cfg, name))
         require(len(speeds) > 0 and all(isinstance(v, (int, float)) for v in speeds), f"env.{name}", speeds,
                 "a non-empty list of numbers")
-    check_start_margin(load_map(cfg.map), cfg.margin)
+    validate_random_map(cfg)
+    if cfg.map != RANDOM_MAP:
+        check_start_margin(load_map(cfg.map), cfg.margin)
+
+
+def validate_random_map(cfg: TrackingConfig) -> None:
+    """The ``random_map`` fields, and what a generated map cannot do (ttenv v1's detour rule needs a fixed map)."""
+    m = cfg.random_map
+    size = list(m.size)
+    require(len(size) == 2 and all(isinstance(v, (int, float)) and v > 0 for v in size), "env.random_map.size",
+            size, "[width, height] in metres, both > 0")
+    check_number("env.random_map.resolution", m.resolution, gt=0)
+    whole = all(math.isclose(round(v / m.resolution) * m.resolution, v, abs_tol=1e-6) for v in size)
+    require(whole, "env.random_map.size", size, f"a whole number of {m.resolution} m cells (random_map.resolution)")
+    free = min(size) - 2 * math.ceil(cfg.margin / m.resolution) * m.resolution
+    require(free > 0, "env.random_map.size", size, f"a map wider than twice env.margin={cfg.margin} m")
+    for name, low in (("num_obstacles", 0), ("length", None), ("width", None)):
+        bounds = list(getattr(m, name))
+        integer = name == "num_obstacles"
+        ok = len(bounds) == 2 and all(isinstance(v, int if integer else (int, float)) for v in bounds)
+        ok = ok and bounds[0] <= bounds[1] and (bounds[0] >= low if integer else bounds[0] > 0)
+        allowed = "[min, max] integers with 0 <= min <= max" if integer else "[min, max] in metres with 0 < min <= max"
+        require(ok, f"env.random_map.{name}", bounds, allowed)
+    shapes = list(m.shapes)
+    require(len(shapes) > 0 and set(shapes) <= set(RANDOM_SHAPES), "env.random_map.shapes", shapes,
+            f"a non-empty list among {list(RANDOM_SHAPES)}")
+    check_number("env.random_map.rotation_deg", m.rotation_deg, ge=0, le=180)
+    check_number("env.random_map.min_start_area", m.min_start_area, gt=0, le=1)
+    check_number("env.random_map.attempts", m.attempts, ge=1, integer=True)
+    require(cfg.map != RANDOM_MAP or cfg.target.collision_rule != "detour", "env.target.collision_rule",
+            cfg.target.collision_rule, f"reflect with map={RANDOM_MAP} (the detour rule's nearest-obstacle table "
+            "is built per fixed map)")
 
 
 # A root config, not a member of the env group: `env=<name>` offers only the settings. Presets start with

@@ -23,6 +23,9 @@ from torch import Tensor
 from aia.config.checks import check_number, require
 from aia.config.errors import ConfigError
 
+# env.map's name for a new random layout per world and episode (aia.envs.map_generator), and its shapes.
+RANDOM_MAP = "random_obstacles"
+RANDOM_SHAPES = ("box", "l", "t")
 _MAP_KEYS = {"size", "resolution", "robot_start", "border_cells", "boxes", "rotated_boxes", "grid", "description"}
 
 
@@ -73,7 +76,8 @@ def load_map(name_or_path: str) -> GridMap:
     if path.suffix not in (".yaml", ".yml"):
         path = map_directory() / f"{name_or_path}.yaml"
         require(path.is_file(), "env.map", name_or_path,
-                f"one of {available_maps()} or a path to a map .yaml file")
+                f"one of {available_maps()}, a path to a map .yaml file, or {RANDOM_MAP} (a new layout per "
+                "world and episode)")
     require(path.is_file(), "env.map", name_or_path, "an existing map .yaml file (this one does not exist)")
     try:
         spec = yaml.safe_load(path.read_text())

@@ -37,7 +37,7 @@ from torch import Tensor
 
 from aia.envs import belief
 from aia.envs.dynamics import double_integrator, se2_step, wrap_angle
-from aia.envs.sensing import MapGeometry
+from aia.envs.sensing import Geometry
 
 TARGET_MODELS = ("double_integrator", "evasive", "se2_sine", "se2_constant")
 
@@ -50,7 +50,7 @@ class TargetModel(ABC):
     normals: int
     heading: int | None = None
 
-    def __init__(self, geometry: MapGeometry, dt: float) -> None:
+    def __init__(self, geometry: Geometry, dt: float) -> None:
         self.geometry = geometry
         self.dt = dt
 
@@ -69,7 +69,7 @@ class DoubleIntegratorTargets(TargetModel):
 
     dim, normals = 4, 6
 
-    def __init__(self, geometry: MapGeometry, dt: float, q: float, reflect_gain: float, reflect_noise_std: float,
+    def __init__(self, geometry: Geometry, dt: float, q: float, reflect_gain: float, reflect_noise_std: float,
                  speed_limit: float | None, collision_rule: str = "reflect", detour_margin: float = 3.5,
                  detour_speed: float = 1.75, detour_floor: float = 1.0) -> None:
         super().__init__(geometry, dt)
@@ -149,7 +149,7 @@ class SineTargets(TargetModel):
 
     dim, normals, heading = 8, 1, 2
 
-    def __init__(self, geometry: MapGeometry, dt: float, step_length: float, frequency: float, amplitude: float,
+    def __init__(self, geometry: Geometry, dt: float, step_length: float, frequency: float, amplitude: float,
                  speed_limit: float, angular_speed_limit: float, turn: float) -> None:
         super().__init__(geometry, dt)
         self.step_length, self.frequency, self.amplitude, self.turn = step_length, frequency, amplitude, turn
@@ -189,7 +189,7 @@ class ConstantSpeedTargets(TargetModel):
 
     dim, normals, heading = 5, 2, 2
 
-    def __init__(self, geometry: MapGeometry, dt: float, q: float, speed_limit: float,
+    def __init__(self, geometry: Geometry, dt: float, q: float, speed_limit: float,
                  angular_speed_limit: float) -> None:
         super().__init__(geometry, dt)
         noise = q * torch.tensor([[dt, dt**2 / 2], [dt**2 / 2, dt]], dtype=torch.float64)

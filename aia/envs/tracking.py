@@ -28,8 +28,9 @@ from aia.envs.belief_models import belief_model
 from aia.envs.config import TrackingConfig, belief_model_name
 from aia.envs.dynamics import motion_primitives, se2_step
 from aia.envs.filters import FILTERS, BeliefFilter
-from aia.envs.maps import load_map
-from aia.envs.sensing import MapGeometry, map_geometry
+from aia.envs.map_generator import RandomObstacles
+from aia.envs.maps import RANDOM_MAP, GridMap, load_map
+from aia.envs.sensing import Geometry, WorldMapGeometry, map_geometry
 from aia.envs.targets import ConstantSpeedTargets, DoubleIntegratorTargets, EvasiveTargets, SineTargets, TargetModel
 from aia.runtime.compiling import compiled
 
@@ -79,17 +80,21 @@ class TargetTrackingEnv(EnvBase):
         self.dtype = getattr(torch, config.dtype)
         dev, fdt = self.device, self.dtype
 
-        self.map = load_map(config.map)
-        self.geometry = map_geometry(
-            config.map,
-            margin=config.margin,
-            sensor_range=config.sensor.range,
-            fov=math.radians(config.sensor.fov_deg),
-            ray_spacing=config.sensor.obstacle_ray_spacing,
-            collision_supersample=config.collision_supersample,
-            device=dev,
-            dtype=fdt,
-        )
+        sensing = dict(margin=config.margin, sensor_range=config.sensor.range, fov=math.radians(config.sensor.fov_deg),
+                       ray_spacing=config.sensor.obstacle_ray_spacing,
+                       collision_supersample=config.collision_supersample, device=dev, dtype=fdt)
+        # map=random_obstacles: a new map per world at each of its resets, drawn from its episode key.
+        self.map_generator: RandomObstacles | None = None
+        self.geometry: Geometry
+        if config.map == RANDOM_MAP:
+            self.map_generator = RandomObstacles(config.random_map, config.margin)
+            size = tuple(float(v) for v in config.random_map.size)
+            self.geometry = WorldMapGeometry(num_worlds, size, float(config.random_map.resolution), **sensing)
+            self._robot_start, self._map_size = None, size
+        else:
+            fixed = load_map(config.map)
+            self.geometry = map_geometry(config.map, **sensing)
+            self._robot_start, self._map_size = fixed.robot_start, (fixed.width, fixed.height)
         self.primitives = motion_primitives(config.robot.linear_speeds, config.robot.angular_speeds, fdt).to(dev)
         self.meas_noise = torch.diag(
             torch.tensor([config.sensor.range_std**2, config.sensor.bearing_std**2], dtype=fdt, device=dev)
@@ -105,10 +110,20 @@ class TargetTrackingEnv(EnvBase):
         self._init_state()
         self.set_seed(seed)
 
+    @property
+    def map(self) -> GridMap:
+        """The map of every world; with ``map=random_obstacles``, world 0's current one (:meth:`world_map`)."""
+        return self.world_map(0)
+
+    def world_map(self, world: int) -> GridMap:
+        """World ``world``'s current map (on the CPU)."""
+        geometry = self.geometry
+        return geometry.grid_map(world) if isinstance(geometry, WorldMapGeometry) else geometry.map
+
     # ------------------------------------------------------------------ specs
     def _make_specs(self) -> None:
         B, N, dev, fdt = self.batch_size[0], self.num_targets, self.device, self.dtype
-        width, height = self.map.width, self.map.height
+        width, height = self._map_size
         max_v = max(abs(v) for v in self.config.robot.linear_speeds)
         max_w = max(abs(w) for w in self.config.robot.angular_speeds)
         filter_specs = self.belief_filter.specs(B, N, fdt, dev)
@@ -209,6 +224,9 @@ class TargetTrackingEnv(EnvBase):
         self._step_count.masked_fill_(mask, 0)
         # a partial reset reads the step counts back (one device sync per reset, not per step)
         self._steps_bound = 0 if tensordict is None or "_reset" not in tensordict else int(self._step_count.max())
+        if self.map_generator is not None:
+            worlds = mask.nonzero().squeeze(-1)
+            self.geometry.draw_maps(worlds, self.map_generator, self._episode_key[worlds])
         fresh = self._initial_state()
         self.state = _select(mask, fresh, self.state)
         out = self.state.clone()
@@ -229,8 +247,8 @@ class TargetTrackingEnv(EnvBase):
         u = rng.uniform(self._episode_key, counter, rng.WorldStream.RESET, 4 + N * (4 * M + 3), fdt)
         u_robot, u_heading, u_target, u_belief, u_fallback = torch.split(u, (3, 1, 2 * N * M, 2 * N * M, 3 * N), -1)
 
-        if self.map.robot_start is not None:
-            robot_xy = torch.tensor(self.map.robot_start, dtype=fdt, device=dev).expand(B, 2)
+        if self._robot_start is not None:
+            robot_xy = torch.tensor(self._robot_start, dtype=fdt, device=dev).expand(B, 2)
         else:
             robot_xy = geom.sample_free(u_robot)
         heading = (2 * u_heading - 1) * math.pi
@@ -353,7 +371,7 @@ class TargetTrackingEnv(EnvBase):
         return fields, reward, truncated
 
 
-def make_targets(config: TrackingConfig, geometry: MapGeometry) -> TargetModel:
+def make_targets(config: TrackingConfig, geometry: Geometry) -> TargetModel:
     """The true targets' model of a setting (``env.target.model``)."""
     t, dt = config.target, config.dt
     if t.model in ("double_integrator", "evasive"):
@@ -419,9 +437,10 @@ def _direction(delta: Tensor) -> Tensor:
     return torch.atan2(delta[..., 1], delta[..., 0])
 
 
-def _first_free(candidates: Tensor, geometry: MapGeometry, fallback: Tensor) -> Tensor:
-    """The first collision-free candidate ``[..., M, 2]`` of each row, or ``fallback`` if none is free."""
-    free = ~geometry.in_collision(candidates)
+def _first_free(candidates: Tensor, geometry: Geometry, fallback: Tensor) -> Tensor:
+    """The first candidate ``[..., M, 2]`` of each row where an episode may start (collision-free; in the start
+    cells of a random map), or ``fallback`` if there is none."""
+    free = geometry.free_start(candidates)
     first = free.to(torch.int8).argmax(-1, keepdim=True)
     chosen = torch.gather(candidates, -2, first.unsqueeze(-1).expand(*first.shape, 2)).squeeze(-2)
     return torch.where(free.any(-1, keepdim=True), chosen, fallback)

@@ -1,4 +1,5 @@
-"""Tests of aia/envs/sensing.py: collision, line of sight, closest obstacle, free sampling, polar table."""
+"""Tests of aia/envs/sensing.py: collision, line of sight, closest obstacle, free sampling, polar table; per-world
+maps answering as each world's own map."""
 
 from __future__ import annotations
 
@@ -8,8 +9,10 @@ import numpy as np
 import pytest
 import torch
 
+from aia.envs.config import RandomMapConfig
+from aia.envs.map_generator import RandomObstacles, start_cells
 from aia.envs.maps import GridMap, load_map
-from aia.envs.sensing import MapGeometry
+from aia.envs.sensing import MapGeometry, WorldMapGeometry
 
 MARGIN, RANGE, FOV, SPACING = 0.5, 10.0, math.radians(120), 0.05
 
@@ -334,3 +337,52 @@ def test_in_view_applies_range_field_of_view_and_line_of_sight():
     # at 7.2 m, the segment passing above the wall (y = 7.7 m at x = 6 m)
     assert seen.tolist() == [True, False, False, False, True]
     assert polar[0].tolist() == pytest.approx([2.0, 0.0]) and polar[1].tolist() == pytest.approx([2.0, math.pi / 2])
+
+
+# ------------------------------------------------------ per-world maps
+def _world_maps(resolution: float = 0.5) -> torch.Tensor:
+    """Three 10 m x 10 m maps: a column, a few cells and a generated layout."""
+    occ = torch.zeros(3, 20, 20, dtype=torch.bool)
+    occ[0, 3:17, 12] = True
+    occ[1, [4, 10, 10, 15], [4, 10, 11, 2]] = True
+    layouts = RandomObstacles(RandomMapConfig(size=[10.0, 10.0], resolution=resolution, length=[1.0, 4.0],
+                                              min_start_area=0.05), MARGIN)
+    occ[2] = layouts.generate(torch.tensor([7]))[0][0]
+    return occ
+
+
+def test_world_maps_answer_as_each_worlds_own_map():
+    occ = _world_maps()
+    B = occ.shape[0]
+    worlds = WorldMapGeometry(B, (10.0, 10.0), 0.5, MARGIN, 5.0, FOV, SPACING, 4, "cpu", torch.float32)
+    worlds.set_maps(torch.arange(B), occ, start_cells(occ, 0.5, MARGIN))
+    gen = torch.Generator().manual_seed(0)
+    points = torch.rand(B, 400, 2, generator=gen) * 11 - 0.5
+    poses = torch.cat((torch.rand(B, 300, 2, generator=gen) * 10, (torch.rand(B, 300, 1, generator=gen) * 2 - 1)
+                       * math.pi), -1)
+    # Each world answers one pose at a time, as a [B, ...] batch.
+    collision = worlds.in_collision(points)
+    closest = torch.stack([worlds.closest_obstacle(poses[:, k]) for k in range(poses.shape[1])], 1)
+    seen, polar = worlds.in_view(poses, points[:, :300, None, :])
+    for b in range(B):
+        fixed = MapGeometry(GridMap("world", 0.5, occ[b]), MARGIN, 5.0, FOV, SPACING, 4, "cpu", torch.float32)
+        assert torch.equal(collision[b], fixed.in_collision(points[b]))
+        assert torch.equal(closest[b], fixed.closest_obstacle(poses[b]))
+        fixed_seen, fixed_polar = fixed.in_view(poses[b], points[b, :300, None, :])
+        assert torch.equal(seen[b], fixed_seen) and torch.equal(polar[b], fixed_polar)
+    assert 0.1 < collision.float().mean() < 0.9 and (closest[..., 0] < 5.0).float().mean() > 0.3
+    assert 0.05 < (~seen).float().mean() < 0.95
+
+
+def test_world_map_starts_are_free_and_sampled_uniformly():
+    occ = _world_maps()
+    starts = start_cells(occ, 0.5, MARGIN)
+    worlds = WorldMapGeometry(3, (10.0, 10.0), 0.5, MARGIN, 5.0, FOV, SPACING, 4, "cpu", torch.float32)
+    worlds.set_maps(torch.arange(3), occ, starts)
+    xy = worlds.sample_free(torch.rand(3, 4000, 3, generator=torch.Generator().manual_seed(1)))
+    assert worlds.free_start(xy).all() and not worlds.in_collision(xy).any()
+    for b in range(3):  # every start cell drawn, about equally often
+        cells = (xy[b] / 0.5).long()
+        counts = torch.zeros(20, 20).index_put_((cells[:, 1], cells[:, 0]), torch.ones(4000), accumulate=True)
+        assert torch.equal(counts > 0, starts[b])
+        assert counts[starts[b]].max() < 4 * 4000 / starts[b].sum()

@@ -1,0 +1,245 @@
+"""Random obstacle maps: a new layout per world and episode (``env.map=random_obstacles``).
+
+A layout is drawn from the world's episode key (:class:`aia.rng.WorldStream` ``MAP``), so a world's maps depend on
+the seed, its index and its episode count only, never on the batch or on the other worlds. Each of
+``num_obstacles`` obstacles (uniform in ``[min, max]``) is one of our procedural ``shapes``, made of
+rectangles of ``length`` and ``width`` (each uniform in its ``[min, max]``), turned by a uniform angle within
+``+-rotation_deg`` about its centre, which is uniform over the map (an obstacle may stick out of the bounds):
+
+* ``box``: ``length x width``;
+* ``l``: two arms, ``length x width`` and ``width x length2`` (a second length draw), joined at a corner;
+* ``t``: a bar ``length x width`` and a stem ``width x length2`` down from its middle (the stem's top the bar's).
+
+A cell is occupied when its centre lies in a rectangle (the map loader's rule for rotated boxes).
+
+Episodes start in the layout's *start cells* (:func:`start_cells`): the cells whose whole square is
+collision-free (at least ``margin`` from the bounds and from every occupied cell's square, so every point in
+them is free) and that belong to the largest 4-connected group of such cells (any two are joined by a free
+path, so the robot can reach every target's start). A layout whose start cells cover less than
+``min_start_area`` of the map is drawn again from the next counter of the world's stream, up to ``attempts``
+times; then the reset fails with a one-line :class:`~aia.config.errors.ConfigError`.
+
+The layouts are one numba kernel over the worlds (threads over worlds; rasterising each rectangle in its
+bounding box, the margin stamped around the obstacles' edge cells, the groups by union-find over runs of
+cells; ``benchmarks/map_generation.py`` times it).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+from torch import Tensor
+
+from aia import rng
+from aia.config.errors import ConfigError
+from aia.envs.maps import RANDOM_SHAPES
+
+# The uniforms one obstacle takes: shape, centre x and y, angle, length, second length, width.
+_OBSTACLE_DRAWS = 7
+
+
+class RandomObstacles:
+    """Draws the layouts of :mod:`aia.envs.map_generator` for a :class:`~aia.envs.config.RandomMapConfig`."""
+
+    def __init__(self, config, margin: float) -> None:
+        self.config = config
+        self.resolution = float(config.resolution)
+        self.size = (float(config.size[0]), float(config.size[1]))
+        self.shape = (round(self.size[1] / self.resolution), round(self.size[0] / self.resolution))
+        self.margin = margin
+        self.draws = 1 + _OBSTACLE_DRAWS * int(config.num_obstacles[1])
+        self.min_cells = max(1, math.ceil(config.min_start_area * self.shape[0] * self.shape[1]))
+        self._shapes = np.array([RANDOM_SHAPES.index(s) for s in config.shapes], dtype=np.int64)
+        self._kernel = margin_kernel(margin, self.resolution)
+        self._wall_cells = math.ceil(margin / self.resolution)
+
+    def generate(self, keys: Tensor, worlds: Tensor | None = None,
+                 out: tuple[Tensor, Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """``(occupancy [K, ny, nx], start_cells [K, ny, nx], row_starts [K, ny])`` (bool, bool, int64; on the CPU:
+        each map, its start cells, their number in each row) for the episode keys ``keys [K]``.
+
+        With ``out`` (CPU tensors ``[B, ...]`` of those shapes) key ``i``'s map is written in place into row
+        ``worlds[i]`` of each, and ``out`` returned: an env's buffers, filled without a copy.
+        """
+        keys = keys.cpu()
+        if out is None:
+            out = (torch.empty(keys.shape[0], *self.shape, dtype=torch.bool), torch.empty(keys.shape[0], *self.shape,
+                   dtype=torch.bool), torch.empty(keys.shape[0], self.shape[0], dtype=torch.int64))
+            worlds = torch.arange(keys.shape[0])
+        arrays = tuple(t.numpy() for t in out)
+        worlds, todo = worlds.cpu(), torch.arange(keys.shape[0])
+        cfg = self.config
+        for attempt in range(cfg.attempts):
+            u = rng.uniform(keys[todo], torch.full_like(todo, attempt), rng.WorldStream.MAP, self.draws, torch.float64)
+            counts = _layouts(
+                u.numpy(), worlds[todo].numpy(), self._shapes, int(cfg.num_obstacles[0]), int(cfg.num_obstacles[1]),
+                float(cfg.length[0]), float(cfg.length[1]), float(cfg.width[0]), float(cfg.width[1]),
+                math.radians(cfg.rotation_deg), self.resolution, self._kernel, self._wall_cells, *arrays)
+            todo = todo[torch.from_numpy(counts < self.min_cells)]
+            if todo.numel() == 0:
+                return out
+        raise ConfigError("env.random_map", f"{todo.numel()} of {keys.shape[0]} worlds",
+                          f"layouts whose connected start cells cover min_start_area={cfg.min_start_area} of the map "
+                          f"within attempts={cfg.attempts} draws (fewer, shorter or thinner obstacles)")
+
+
+def start_cells(occupancy: Tensor, resolution: float, margin: float) -> Tensor:
+    """``[K, ny, nx]`` the start cells (see the module docstring) of any maps ``occupancy [K, ny, nx]``."""
+    grid = np.ascontiguousarray(occupancy.cpu().numpy().astype(np.bool_))
+    starts = np.empty_like(grid)
+    row_starts = np.empty(grid.shape[:2], dtype=np.int64)
+    _start_cells_all(grid, margin_kernel(margin, resolution), math.ceil(margin / resolution), starts, row_starts)
+    return torch.from_numpy(starts)
+
+
+def margin_kernel(margin: float, resolution: float) -> np.ndarray:
+    """``[K, 2]`` the offsets ``(drow, dcol)`` of the cells whose square lies within ``margin`` of the square of
+    the cell at ``(0, 0)`` (the gap is ``max(|d| - 1, 0)`` cells along each axis): an occupied cell makes them
+    unfit to start in."""
+    reach = math.ceil(margin / resolution) + 1
+    offsets = [(dr, dc) for dr in range(-reach, reach + 1) for dc in range(-reach, reach + 1)
+               if (max(abs(dr) - 1, 0) ** 2 + max(abs(dc) - 1, 0) ** 2) * resolution**2 < margin**2]
+    return np.array(offsets, dtype=np.int64).reshape(-1, 2)
+
+
+@numba.njit(parallel=True, cache=True)
+def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_lo, width_hi, rotation, resolution,
+             kernel, wall_cells, occupancy, starts, row_starts):  # pragma: no cover - compiled
+    """Rasterise the layout of each row of ``u`` into ``occupancy[worlds[i]]`` and its start cells into
+    ``starts[worlds[i]]`` (their number per row into ``row_starts[worlds[i]]``); returns each layout's number of
+    start cells."""
+    counts = np.zeros(worlds.shape[0], dtype=np.int64)
+    for i in numba.prange(worlds.shape[0]):
+        grid = occupancy[worlds[i]]
+        grid[:] = False
+        draws = u[i]
+        boxes = np.empty((2 * count_hi, 4), dtype=np.int64)  # the rectangles' cell ranges (_start_cells' scan)
+        count = count_lo + min(int(draws[0] * (count_hi - count_lo + 1)), count_hi - count_lo)
+        for k in range(count):
+            d = draws[1 + 7 * k: 8 + 7 * k]
+            shape = shapes[min(int(d[0] * shapes.shape[0]), shapes.shape[0] - 1)]
+            cx, cy = d[1] * grid.shape[1] * resolution, d[2] * grid.shape[0] * resolution
+            angle = (2.0 * d[3] - 1.0) * rotation
+            a = length_lo + d[4] * (length_hi - length_lo)
+            b = length_lo + d[5] * (length_hi - length_lo)
+            w = width_lo + d[6] * (width_hi - width_lo)
+            if shape == 0:    # box
+                _rectangle(grid, boxes[2 * k], resolution, cx, cy, angle, 0.0, 0.0, a / 2, w / 2)
+                boxes[2 * k + 1] = boxes[2 * k]
+            elif shape == 1:  # l: arms along x and y from a corner, centred on its bounding box
+                sx, sy = max(a, w) / 2, max(b, w) / 2
+                _rectangle(grid, boxes[2 * k], resolution, cx, cy, angle, a / 2 - sx, w / 2 - sy, a / 2, w / 2)
+                _rectangle(grid, boxes[2 * k + 1], resolution, cx, cy, angle, w / 2 - sx, b / 2 - sy, w / 2, b / 2)
+            else:             # t: a bar and a stem down from its middle, centred on its bounding box
+                sy = (w - max(b, w)) / 2
+                _rectangle(grid, boxes[2 * k], resolution, cx, cy, angle, 0.0, -sy, a / 2, w / 2)
+                _rectangle(grid, boxes[2 * k + 1], resolution, cx, cy, angle, 0.0, (w - b) / 2 - sy, w / 2, b / 2)
+        counts[i] = _start_cells(grid, kernel, wall_cells, boxes[:2 * count], starts[worlds[i]],
+                                 row_starts[worlds[i]])
+    return counts
+
+
+@numba.njit(cache=True)
+def _start_cells_all(occupancy, kernel, wall_cells, starts, row_starts):  # pragma: no cover - compiled
+    whole = np.array([[0, occupancy.shape[1] - 1, 0, occupancy.shape[2] - 1]])
+    for i in range(occupancy.shape[0]):
+        _start_cells(occupancy[i], kernel, wall_cells, whole, starts[i], row_starts[i])
+
+
+@numba.njit(cache=True)
+def _rectangle(grid, box, resolution, cx, cy, angle, lx, ly, hx, hy):  # pragma: no cover - compiled
+    """Occupy the cells whose centre lies in the rectangle of half extents ``(hx, hy)`` centred at ``(lx, ly)``
+    in the frame of an obstacle at ``(cx, cy)`` turned by ``angle``; ``box`` gets the cell ranges scanned."""
+    c, s = math.cos(angle), math.sin(angle)
+    wx, wy = cx + lx * c - ly * s, cy + lx * s + ly * c
+    ex, ey = abs(c) * hx + abs(s) * hy, abs(s) * hx + abs(c) * hy
+    ny, nx = grid.shape
+    # the cells whose centre (i + 0.5) * resolution lies within the rectangle's bounding box
+    col0 = max(0, int(math.ceil((wx - ex) / resolution - 0.5)))
+    col1 = min(nx - 1, int(math.floor((wx + ex) / resolution - 0.5)))
+    row0 = max(0, int(math.ceil((wy - ey) / resolution - 0.5)))
+    row1 = min(ny - 1, int(math.floor((wy + ey) / resolution - 0.5)))
+    box[0], box[1], box[2], box[3] = row0, row1, col0, col1
+    for r in range(row0, row1 + 1):
+        dy = (r + 0.5) * resolution - wy
+        for col in range(col0, col1 + 1):
+            dx = (col + 0.5) * resolution - wx
+            if abs(dx * c + dy * s) <= hx and abs(-dx * s + dy * c) <= hy:
+                grid[r, col] = True
+
+
+@numba.njit(cache=True)
+def _start_cells(grid, kernel, wall_cells, boxes, starts, row_starts):  # pragma: no cover - compiled
+    """Write the start cells of ``grid`` into ``starts`` (both ``[ny, nx]``), their number per row into
+    ``row_starts [ny]``, and return their number; every occupied cell lies in one of ``boxes`` (``[n, 4]`` row
+    and column ranges, ends included)."""
+    ny, nx = grid.shape
+    starts[:] = False
+    for r in range(wall_cells, ny - wall_cells):
+        for col in range(wall_cells, nx - wall_cells):
+            starts[r, col] = not grid[r, col]
+    # The margin around each occupied cell with a free 4-neighbour (an inner cell's lies within its edge's).
+    for b in range(boxes.shape[0]):
+        for r in range(boxes[b, 0], boxes[b, 1] + 1):
+            for col in range(boxes[b, 2], boxes[b, 3] + 1):
+                if not grid[r, col]:
+                    continue
+                if ((r > 0 and not grid[r - 1, col]) or (r < ny - 1 and not grid[r + 1, col])
+                        or (col > 0 and not grid[r, col - 1]) or (col < nx - 1 and not grid[r, col + 1])):
+                    for k in range(kernel.shape[0]):
+                        rr, cc = r + kernel[k, 0], col + kernel[k, 1]
+                        if 0 <= rr < ny and 0 <= cc < nx:
+                            starts[rr, cc] = False
+    # The largest 4-connected group: union-find over the runs of free cells of each row.
+    capacity = ny * ((nx + 1) // 2)
+    run_row = np.empty(capacity, dtype=np.int64)
+    run_lo = np.empty(capacity, dtype=np.int64)
+    run_hi = np.empty(capacity, dtype=np.int64)
+    parent = np.empty(capacity, dtype=np.int64)
+    runs, previous, previous_end = 0, 0, 0
+    for r in range(ny):
+        row_start = runs
+        j = previous
+        col = 0
+        while col < nx:
+            if not starts[r, col]:
+                col += 1
+                continue
+            lo = col
+            while col < nx and starts[r, col]:
+                col += 1
+            run_row[runs], run_lo[runs], run_hi[runs], parent[runs] = r, lo, col - 1, runs
+            while j < previous_end and run_hi[j] < lo:
+                j += 1
+            m = j
+            while m < previous_end and run_lo[m] <= col - 1:
+                a, b = _root(parent, m), _root(parent, runs)
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+                m += 1
+            runs += 1
+        previous, previous_end = row_start, runs
+    size = np.zeros(runs, dtype=np.int64)
+    for k in range(runs):
+        size[_root(parent, k)] += run_hi[k] - run_lo[k] + 1
+    row_starts[:] = 0
+    if runs == 0:
+        return 0
+    best = np.argmax(size)
+    for k in range(runs):
+        if _root(parent, k) == best:
+            row_starts[run_row[k]] += run_hi[k] - run_lo[k] + 1
+        else:
+            starts[run_row[k], run_lo[k]:run_hi[k] + 1] = False
+    return size[best]
+
+
+@numba.njit(cache=True)
+def _root(parent, k):  # pragma: no cover - compiled
+    while parent[k] != k:
+        parent[k] = parent[parent[k]]
+        k = parent[k]
+    return k
