@@ -2,7 +2,8 @@
 
 A run is a function of its config: :func:`train` trains one learner, :func:`train_population` trains ``P``
 independent learners (configs that differ only in :data:`~aia.training.members.MEMBER_KEYS`) as one batched
-program, and a solo run is a population of one: the same loop, not a second copy. Member ``k``:
+program, and a solo run is a population of one: the same loop, not a second copy. The objects are built once
+(:class:`~aia.training.population.Population`); this module runs the loop over them. Member ``k``:
 
 * steps its own ``collector.num_envs`` worlds of one batched env (seeded as a solo run with its seed);
 * acts through its slice of a :class:`~aia.modules.StackedQNetwork` and its own exploration stream
@@ -30,60 +31,32 @@ import math
 import signal
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 from omegaconf import DictConfig
 from torchrl.collectors import Collector
-from torchrl.envs import SelectTransform
-from torchrl.objectives import HardUpdate
 from torchrl.record.loggers import Logger
 
 from aia.config.errors import ConfigError
-from aia.envs import make_env
-from aia.envs.factory import to_tracking_config
-from aia.evaluation import Evaluator, log_score_summary
+from aia.evaluation import log_score_summary
 from aia.logging import MCAPLogger
 from aia.modules import PopulationQPolicy
-from aia.modules.q_networks import make_qvalue_actor
 from aia.runtime.memory import keep_freed_memory
 from aia.runtime.timing import PhaseTimer
-from aia.training.checkpoint import PopulationParts, load_member, member_checkpoint
+from aia.training.checkpoint import TrainingState, member_checkpoint
 from aia.training.checkpoint_files import save_checkpoints
-from aia.training.components import (
-    make_actor,
-    make_logger,
-    make_loss,
-    make_recorders,
-    make_stacked_network,
-)
+from aia.training.components import make_logger
 from aia.training.folder_lock import folder_locks
 from aia.training.members import check_population
-from aia.training.optimizer import StackedAdam, Updater
+from aia.training.population import Population, build_population
 from aia.training.progress import progress_bar
-from aia.training.replay import MemberReplay
 from aia.training.resuming import checkpoint_point, load_resumable, resume_path
 from aia.training.stopping import StopOnSignals
-from aia.training.target_cache import TargetCache
-
-
-@dataclass
-class TrainingState:
-    """A member's counters and evaluation scores: what a checkpoint carries across a restart."""
-
-    frames: int = 0
-    updates: int = 0
-    episodes: int = 0
-    evaluations: int = 0
-    eval_scores: list[float] = field(default_factory=list)
-    seconds: dict[str, float] = field(default_factory=dict)  # wall clock per phase of the loop (PhaseTimer)
-
 
 # What the loop reads of each collected frame besides the loss's keys: the score's terms (SPEC 9).
 _SCORE_KEY = ("next", "logdet_cov")
-# Seeds of member k's evaluation worlds and noise, derived from its seed.
-_EVAL_SEED_OFFSET = 1_000_003
 
 
 def train(cfg: DictConfig, out_dir: Path, stop: StopOnSignals | None = None) -> TrainingState:
@@ -137,59 +110,30 @@ def _close(loggers: Sequence[Logger | None], quiet: bool) -> None:
 
 def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | None], stop: StopOnSignals | None,
            checkpoints: list[dict | None]) -> list[TrainingState]:
+    """Build the population (resumed from ``checkpoints``) and run the loop to the end of its frame budget."""
     cfg = cfgs[0]  # the shared settings
-    P, W = len(cfgs), cfg.collector.num_envs
-    seeds = [int(c.seed) for c in cfgs]
     if cfg.get("threads"):
         torch.set_num_threads(cfg.threads)
     if cfg.keep_freed_memory:
         keep_freed_memory()
-    env_config = to_tracking_config(cfg.env)
-    env = make_env(env_config, batch_size=P * W, device=cfg.device, compile=cfg.compile.env)
-    # The collector copies every key of every frame: keep what the policy, the loss and the score read.
-    env.append_transform(SelectTransform("observation", "logdet_cov", keep_rewards=True, keep_dones=True))
-    eval_env = make_env(env_config, batch_size=cfg.eval.episodes * cfg.eval.per_rollout * P, device=cfg.device,
-                        compile=cfg.compile.env)
-    obs_dim, num_actions = env.observation_spec["observation"].shape[-1], env.action_spec.n
-    network = make_stacked_network(cfgs, obs_dim, num_actions)
-    actor = make_qvalue_actor(network, env.action_spec, adfq=cfg.algo.name == "adfq")
-    annealing = [max(1, int(c.exploration.get("annealing_fraction", 1.0) * cfg.frames)) for c in cfgs]
-    policy = PopulationQPolicy(
-        network, num_actions, W, seeds, thompson=[c.exploration.name == "thompson" for c in cfgs],
-        eps_init=[c.exploration.get("eps_init", 0.0) for c in cfgs],
-        eps_end=[c.exploration.get("eps_end", 0.0) for c in cfgs], annealing_frames=annealing,
-        warmup_frames=cfg.warmup_frames)
-    loss = make_loss(cfgs, actor)
-    target_updater = HardUpdate(loss, value_network_update_interval=cfg.target_update_interval)
-    optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [c.lr for c in cfgs])
-    replay = MemberReplay(cfg.buffer_size, cfg.batch_size, seeds, device=cfg.device)
-    # cfg.compile.update would be DictConfig's dict method update (always true), not the switch
-    compile_update = cfg.compile["update"]
-    targets = TargetCache(loss, network, replay, worlds=W, compile=compile_update) if cfg.algo.name == "adfq" else None
-    update = Updater(loss, optimizer, target_updater, cfg.grad_clip, compile=compile_update,
-                     on_target_copy=targets.invalidate if targets else None)
-    base_env = env.base_env
-    world_episodes = torch.zeros(P * W, dtype=torch.int64)
-    parts = PopulationParts(loss.value_network_params, loss.target_value_network_params, optimizer, policy, replay,
-                            target_updater, world_episodes)
-    shared, scores = _resume(checkpoints, parts)
-    # member k's worlds are a solo run's worlds with its seed (episode counters as checkpointed)
-    base_env.replay_streams(torch.tensor(seeds).repeat_interleave(W), torch.arange(W).repeat(P), world_episodes)
-    recorders = make_recorders(cfg, loggers, eval_env)
-    evaluator = Evaluator(eval_env, network, num_actions, cfg.eval.episodes, cfg.eval.epsilon,
-                          seeds=[s + _EVAL_SEED_OFFSET for s in seeds],
-                          noise_seeds=[(s + 1) * _EVAL_SEED_OFFSET for s in seeds], first_index=shared.evaluations,
-                          recorders=recorders, record_every=cfg.logger.get("record_every_evaluations", 0),
-                          compile=cfg.compile.policy)
-    run = _Run(cfgs, out_dirs, loggers, shared, scores, parts, evaluator, actor_template=make_actor(cfg, env))
+    population, shared, scores = build_population(cfgs, loggers, checkpoints)
+    run = _Run(out_dirs, loggers, shared, scores, population)
+    if cfg.frames > shared.frames:
+        _loop(population, run, stop)
+    return run.states()
 
+
+def _loop(population: Population, run: _Run, stop: StopOnSignals | None) -> None:
+    """Collect, store, update, evaluate and checkpoint until the frame budget is spent or ``stop`` has seen a
+    signal; then play the pending evaluations, write every member's checkpoint and log the run's speed."""
+    cfg, shared = population.cfgs[0], run.shared
+    P, W = len(population.cfgs), population.worlds_per_member
+    policy, replay, targets, update = population.policy, population.replay, population.targets, population.update
     remaining = cfg.frames - shared.frames
-    if remaining <= 0:
-        return run.states()
     steps = math.ceil(remaining / W)
     policy_steps = policy.steps
     collector = Collector(
-        env, policy, frames_per_batch=P * W, total_frames=steps * P * W, device=cfg.device,
+        population.env, policy, frames_per_batch=P * W, total_frames=steps * P * W, device=cfg.device,
         auto_register_policy_transforms=False,  # the Q-networks keep no recurrent state
         track_traj_ids=False,  # trajectory ids are not used (episodes end on done): saves a copy per step
         return_same_td=True,  # no clone per batch: the loop copies what it keeps (into the replay buffer)
@@ -201,15 +145,16 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
     warmup_frames, updates_per_frame = cfg.warmup_frames, cfg.updates_per_frame
     checkpoint_every, eval_every = cfg.checkpoint_every_frames, cfg.eval.every_episodes
     checkpoint_every_s, last_checkpoint, checkpoint_due = cfg.checkpoint_every_s, time.monotonic(), False
-    max_steps = env_config.max_steps
+    max_steps = population.env_config.max_steps
     episode_step = 0  # steps into the current episode (all worlds in lockstep; a resumed run starts afresh)
     first_update = True
     timer = PhaseTimer(shared.seconds)  # updates shared.seconds in place
     measured_before = sum(shared.seconds.values())
     start = time.perf_counter()
-    bar = progress_bar(cfg.frames, shared.frames, _description(cfgs))
+    bar = progress_bar(cfg.frames, shared.frames, _description(population.cfgs))
     batches = iter(collector)
-    in_keys = loss.in_keys
+    in_keys = population.loss.in_keys
+    evaluator = population.evaluator
     # Python's full collections walk every object, and torch (and compiling) leave about half a million of them:
     # one took 0.3 s in a 2,000-frame job. Objects made before the loop stay out of the collections until it ends.
     gc.freeze()
@@ -267,7 +212,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
                 with timer("evaluate"):
                     run.evaluate()  # a checkpoint keeps no pending evaluation
                 with timer("checkpoint"):
-                    run.save(base_env, episode_step)
+                    run.save(episode_step)
                 checkpoint_due, last_checkpoint = False, time.monotonic()
         with timer("evaluate"):
             run.evaluate()
@@ -277,9 +222,8 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
         collector.shutdown()
         # logging, the progress bar and the loop's own bookkeeping
         timer.add("other", time.perf_counter() - start - (sum(shared.seconds.values()) - measured_before))
-    run.save(base_env, episode_step)
+    run.save(episode_step)
     run.log_summary(remaining / (time.perf_counter() - start))
-    return run.states()
 
 
 def _description(cfgs: list[DictConfig]) -> str:
@@ -311,26 +255,13 @@ def _checkpoints(cfgs: list[DictConfig], out_dirs: list[Path]) -> list[dict | No
     return checkpoints
 
 
-def _resume(checkpoints: list[dict | None], parts: PopulationParts) -> tuple[TrainingState, list[list[float]]]:
-    """The shared counters and each member's scores, with the members' checkpoints loaded into ``parts``."""
-    if checkpoints[0] is None:
-        return TrainingState(), [[] for _ in checkpoints]
-    states = []
-    for member, checkpoint in enumerate(checkpoints):
-        load_member(parts, member, checkpoint)
-        states.append(TrainingState(**checkpoint["state"]))
-    return replace(states[0], eval_scores=[]), [s.eval_scores for s in states]
-
-
 class _Run:
     """The members' bookkeeping around the loop: counters, scores, logging, evaluations and checkpoints."""
 
-    def __init__(self, cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | None],
-                 shared: TrainingState, scores: list[list[float]], parts: PopulationParts, evaluator: Evaluator,
-                 actor_template) -> None:
-        self.cfgs, self.out_dirs, self.loggers = cfgs, out_dirs, loggers
-        self.shared, self.scores, self.parts, self.evaluator = shared, scores, parts, evaluator
-        self.actor_template = actor_template
+    def __init__(self, out_dirs: list[Path], loggers: list[Logger | None], shared: TrainingState,
+                 scores: list[list[float]], population: Population) -> None:
+        self.out_dirs, self.loggers = out_dirs, loggers
+        self.shared, self.scores, self.population = shared, scores, population
 
     def states(self) -> list[TrainingState]:
         """Each member's counters (shared) and scores (its own)."""
@@ -345,11 +276,11 @@ class _Run:
                 if logger:
                     logger.log_scalar("train/score", score, step=shared.frames)
             if shared.episodes % eval_every == 0:
-                self.evaluator.add(shared.episodes, shared.frames)
+                self.population.evaluator.add(shared.episodes, shared.frames)
 
     def evaluate(self) -> None:
         """Play the pending evaluations; log each member's score mean and std and belief error at its frame."""
-        results = self.evaluator.flush()
+        results = self.population.evaluator.flush()
         for point, summaries in results:
             self.shared.evaluations += 1
             for logger, scores, summary in zip(self.loggers, self.scores, summaries, strict=True):
@@ -380,19 +311,20 @@ class _Run:
             status["eps"] = f"{policy.epsilon()[egreedy[0]].item():.2f}"
         return status
 
-    def save(self, base_env, episode_step: int) -> None:
+    def save(self, episode_step: int) -> None:
         """Every member's checkpoint, in its own run folder (all of them or none: :func:`save_checkpoints`).
         Between episodes the collector has already reset the worlds into their next episode: the checkpoint counts
         it as not begun, so that a resumed run meets the same next episode; a resumed run abandons an interrupted
         episode (it starts the one after)."""
-        self.parts.world_episodes.copy_(base_env._episode - (1 if episode_step == 0 else 0))
-        network = self.parts.policy.network
+        population = self.population
+        population.world_episodes.copy_(population.env.base_env._episode - (1 if episode_step == 0 else 0))
+        network, template = population.network, population.actor_template
 
         def checkpoints() -> Iterator[tuple[Path, dict]]:  # one at a time: a member's copy is freed when written
-            for member, (cfg, out_dir) in enumerate(zip(self.cfgs, self.out_dirs, strict=True)):
-                network.unstack_into(member, self.actor_template[0].module)
+            for member, (cfg, out_dir) in enumerate(zip(population.cfgs, self.out_dirs, strict=True)):
+                network.unstack_into(member, template[0].module)
                 state = replace(self.shared, eval_scores=list(self.scores[member])).__dict__
-                yield out_dir, member_checkpoint(self.parts, member, cfg, state, self.actor_template.state_dict())
+                yield out_dir, member_checkpoint(population, member, cfg, state, template.state_dict())
 
         save_checkpoints(checkpoints())
 
