@@ -1,21 +1,15 @@
-"""Training: one loop for one learner or a population of independent learners (:mod:`aia.training.loop`).
+"""Training: one loop for one learner or a population of independent learners.
 
-``loop`` (the loop and its bookkeeping), ``members`` (what members may differ in), ``components`` (networks,
-loss, logger), ``optimizer`` (per-member clipping and Adam), ``replay`` (per-member replay in one storage),
-``checkpoint`` (one checkpoint per member).
+``population`` (the objects a population builds once, shared by the loop, the checkpoints and the evaluator),
+``loop`` (the loop and the members' bookkeeping), ``members`` (what members may differ in), ``components``
+(networks, loss, logger), ``optimizer`` (per-member clipping and Adam), ``replay`` (per-member replay in one
+storage), ``target_cache`` (ADFQ's targets), ``checkpoint`` (one checkpoint per member), ``sweeps`` (the
+population launcher's one entry: grouping, ordering, resuming and stopping a sweep's populations).
 """
 
+from aia.training.checkpoint import TrainingState
 from aia.training.components import make_actor
-from aia.training.loop import TrainingState, train, train_population
-from aia.training.members import MEMBER_KEYS, PopulationError, check_population, population_signature
+from aia.training.loop import train, train_population
+from aia.training.members import PopulationError
 
-__all__ = [
-    "MEMBER_KEYS",
-    "PopulationError",
-    "TrainingState",
-    "check_population",
-    "make_actor",
-    "population_signature",
-    "train",
-    "train_population",
-]
+__all__ = ["PopulationError", "TrainingState", "make_actor", "train", "train_population"]

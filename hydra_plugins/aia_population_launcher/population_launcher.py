@@ -5,13 +5,13 @@ Hydra hands a launcher the whole sweep at once (``launch(job_overrides, initial_
 1. prepares every job as Hydra's own launchers do (``run_job``: the job's folder, its ``.hydra/`` configs,
    ``hydra.job.num``), with a task that only records the job's config and folder;
 2. groups the jobs whose configs differ only in the keys a member may set for itself
-   (:data:`aia.training.MEMBER_KEYS`: seed, learning rate, epsilon schedule, resume) and says, for every job
+   (:data:`aia.training.members.MEMBER_KEYS`: seed, learning rate, epsilon schedule, resume) and says, for every job
    that must run alone, which key kept it apart;
 3. runs each group as one call of the app's population entry (``task``, a dotted path; by default the one
    the app declares: for ``aia-train`` :func:`aia.apps.train.train_jobs`, which trains the group as one
    population, for ``aia-eval`` :func:`aia.apps.evaluate.evaluate_jobs`, which plans all seeds' ARVI
    episodes in one batch), groups in parallel worker processes up to ``n_jobs``, each with its share of the
-   cores as its torch thread pool, the largest first (:func:`aia.training.members.population_work`: the
+   cores as its torch thread pool, the largest first (:func:`aia.training.sweeps.population_work`: the
    longest populations do not end up last, alone on one core); a worker that dies fails its own population
    only, a stop signal ends the sweep after the running populations (:mod:`.workers`);
 4. says as each population ends how many have ended, after how long, and which jobs it ran (with how many
@@ -39,7 +39,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from hydra_plugins.aia_population_launcher.display import PopulationDisplay
-from hydra_plugins.aia_population_launcher.workers import Outcome, import_entry, run_group, run_in_workers
+from hydra_plugins.aia_population_launcher.workers import Outcome, import_entry, run_group, run_in_workers, training
 
 log = logging.getLogger(__name__)
 
@@ -51,15 +51,12 @@ def group_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[str | Path], numbe
     from different points (``resume=auto`` after a sweep grew: some jobs' folders hold checkpoints, others
     none) train as one population per point, with a line per population saying where it starts. ``numbers``
     are the jobs' numbers in those lines (default: their indices)."""
-    # imported here, not at the top: Hydra's plugin scan imports this module for every app's start
-    from aia.training.members import first_difference, population_signature
-    from aia.training.resuming import resume_point
-
+    sweeps = training()
     numbers = list(numbers) if numbers is not None else list(range(len(cfgs)))
     groups: dict[tuple[str, str], list[int]] = {}
     starts: dict[str, dict[str, str]] = {}  # per signature: each resume point's words
     for index, (cfg, out_dir) in enumerate(zip(cfgs, out_dirs, strict=True)):
-        signature, point = population_signature(cfg), resume_point(cfg, Path(out_dir))
+        signature, point = sweeps.population_signature(cfg), sweeps.resume_point(cfg, Path(out_dir))
         groups.setdefault((signature, repr(point)), []).append(index)
         starts.setdefault(signature, {})[repr(point)] = _start(point)
     notes = [f"{_job_numbers([numbers[i] for i in group])}: {starts[signature][point]} (a population of "
@@ -67,7 +64,7 @@ def group_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[str | Path], numbe
              for (signature, point), group in groups.items() if len(starts[signature]) > 1]
     grouped = list(groups.values())
     for group in grouped[1:]:
-        difference = first_difference(cfgs[group[0]], cfgs[grouped[0][0]]) if len(group) == 1 else None
+        difference = sweeps.first_difference(cfgs[group[0]], cfgs[grouped[0][0]]) if len(group) == 1 else None
         if difference is not None:
             key, own, other = difference
             notes.append(f"job {numbers[group[0]]} runs alone: its {key}={own!r} differs from job "
@@ -76,7 +73,7 @@ def group_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[str | Path], numbe
 
 
 def _start(point: tuple[int, ...] | str | None) -> str:
-    """Where a job with this :func:`~aia.training.resuming.resume_point` starts, in words."""
+    """Where a job with this :func:`~aia.training.sweeps.resume_point` starts, in words."""
     if point is None:
         return "starting fresh"
     if isinstance(point, tuple):
@@ -97,9 +94,8 @@ def split_to_fill(groups: list[list[int]], processes: int) -> list[list[int]]:
 
 
 def largest_first(groups: list[list[int]], cfgs: Sequence[DictConfig]) -> list[list[int]]:
-    """``groups`` by decreasing :func:`~aia.training.members.population_work` (ties keep their order)."""
-    from aia.training.members import population_work  # imported here: see group_jobs
-
+    """``groups`` by decreasing :func:`~aia.training.sweeps.population_work` (ties keep their order)."""
+    population_work = training().population_work
     return sorted(groups, key=lambda group: -population_work([cfgs[i] for i in group]))
 
 
@@ -224,7 +220,7 @@ class PopulationLauncher(Launcher):
         """The population entry: ``task`` if set, else the one the app declares (``hydra_app(population=)``)."""
         task = self.task or getattr(self.task_function, "population_task", None)
         if task is None:
-            from aia.config.errors import ConfigError  # imported here: see group_jobs
+            from aia.config.errors import ConfigError  # imported here: see workers.training
 
             raise ConfigError("hydra.launcher.task", self.task, "the dotted path of a population entry (this app "
                               "declares none: hydra/launcher=population serves aia-train and aia-eval)")
@@ -233,7 +229,7 @@ class PopulationLauncher(Launcher):
     def _check_settings(self, task: str) -> None:
         """Refuse a bad ``hydra.launcher.*`` value with a :class:`~aia.config.errors.ConfigError` (the app prints one
         line and exits with status 2) before any job folder is made."""
-        from aia.config.checks import check_flag, check_number, require  # imported here: see group_jobs
+        from aia.config.checks import check_flag, check_number, require  # imported here: see workers.training
 
         check_number("hydra.launcher.n_jobs", self.n_jobs, ge=1, integer=True)
         check_flag("hydra.launcher.split_to_fill", self.split_to_fill)

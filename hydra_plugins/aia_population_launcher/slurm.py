@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 from hydra_plugins.aia_population_launcher.population_launcher import PopulationLauncher, done_line, largest_first
-from hydra_plugins.aia_population_launcher.workers import Call, Outcome, run_stoppable
+from hydra_plugins.aia_population_launcher.workers import Call, Outcome, run_stoppable, training
 
 # What SLURM sends a task before its time limit (``--signal``), and what a population requeues itself on.
 REQUEUE_SIGNAL = signal.SIGUSR1
@@ -93,12 +93,9 @@ def resumed(call: Call) -> Call:
     """``call`` with ``resume=auto`` for every member whose job folder holds a checkpoint (``last.pt`` or
     ``previous.pt``; the others keep their own ``resume``: a task stopped before its first checkpoint starts as it
     started the first time)."""
-    # imported here: Hydra's plugin scan imports this module
-    from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
-
     task, cfgs, out_dirs, threads = call
-    cfgs = [{**cfg, "resume": "auto"}
-            if any((Path(out_dir) / name).is_file() for name in (CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME)) else cfg
+    has_checkpoint = training().has_checkpoint
+    cfgs = [{**cfg, "resume": "auto"} if has_checkpoint(out_dir) else cfg
             for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
     return task, cfgs, out_dirs, threads
 
@@ -129,7 +126,7 @@ class PopulationSlurmLauncher(PopulationLauncher):
 
     def _check_settings(self, task: str) -> None:
         super()._check_settings(task)
-        from aia.config.checks import check_number, require  # imported here: see group_jobs
+        from aia.config.checks import check_number, require  # imported here: see workers.training
 
         for key, minimum in (("timeout_min", 1), ("cpus_per_task", 1), ("gpus_per_node", 0), ("mem_gb", 1),
                              ("signal_delay_s", 0), ("max_requeues", 0), ("array_parallelism", 1)):
@@ -158,8 +155,6 @@ class PopulationSlurmLauncher(PopulationLauncher):
         """Submit each population as a task of one job array, then wait for them, saying when each starts and
         ends; a stop signal to the launcher leaves the tasks running and exits with 128 + signal."""
         import submitit
-
-        from aia.training.stopping import StopOnSignals
 
         executor = submitit.SlurmExecutor(folder=self.submitit_folder)
         executor.update_parameters(
@@ -198,7 +193,7 @@ class PopulationSlurmLauncher(PopulationLauncher):
                   file=sys.stderr)
             raise SystemExit(128 + signum)
 
-        with StopOnSignals(on_signal=leave_running):
+        with training().StopOnSignals(on_signal=leave_running):
             while waiting:
                 for index in sorted(waiting):
                     if tasks[index].done():

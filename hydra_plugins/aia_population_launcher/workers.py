@@ -32,6 +32,7 @@ import sys
 from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
+from types import ModuleType
 
 from omegaconf import OmegaConf
 
@@ -41,6 +42,12 @@ from hydra_plugins.aia_population_launcher.display import PopulationDisplay
 Outcome = list[tuple[bool, object]]
 # what a population is run with: (task, member configs as dicts, job folders, torch threads or None)
 Call = tuple[str, list[dict], list[str], int | None]
+
+
+def training() -> ModuleType:
+    """:mod:`aia.training.sweeps`, the launcher's one entry into training, imported on first use: Hydra's plugin
+    scan imports this package for every app's start, which must not pay for torch."""
+    return importlib.import_module("aia.training.sweeps")
 
 
 def import_entry(path: str) -> Callable:
@@ -89,7 +96,6 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], 
     stop raises ``SystemExit`` with the workers' exit status once the running calls have ended)."""
     # imported here: Hydra's plugin scan imports this package for every app
     from aia.config.errors import JobFailed
-    from aia.training.stopping import StopOnSignals
 
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch or thread state
     pending = list(enumerate(calls))
@@ -106,7 +112,7 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], 
                 os.kill(process.pid, signum)
 
     try:
-        with StopOnSignals(on_signal=forward) as stop:
+        with training().StopOnSignals(on_signal=forward) as stop:
             while pending or running:
                 while pending and stop_status is None and stop.signal is None and len(running) < processes:
                     process, conn = _idle_worker(idle) or _start_worker(context)
@@ -197,7 +203,7 @@ def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:
 def _serve(conn: Connection) -> None:
     """A worker's loop: run each call received and send back ``("done", outcome)``; a task stopped by a
     signal sends ``("stopped", exit status)`` and ends the worker; ``None`` ends it."""
-    from aia.training.progress import forwarding  # the worker's own import of aia (see run_in_workers)
+    forwarding = training().forwarding  # the worker's own import of aia (see run_in_workers)
 
     sys.stdout.reconfigure(line_buffering=True)  # what is printed between populations, as it comes
     launcher = _LauncherPipe(conn)
@@ -228,12 +234,10 @@ def _interrupting() -> contextlib.AbstractContextManager:
     a task that handles no signals, such as an evaluation) ends at once. A training loop's own
     :class:`~aia.training.stopping.StopOnSignals` takes the signals over while it runs (it stops at the end of
     its episode, with checkpoints) and hands them back when it ends."""
-    from aia.training.stopping import StopOnSignals
-
     def interrupt(signum: int, first: bool) -> None:
         raise _Signalled(signum)
 
-    return StopOnSignals(on_signal=interrupt)
+    return training().StopOnSignals(on_signal=interrupt)
 
 
 class _LauncherPipe:
