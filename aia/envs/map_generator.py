@@ -20,8 +20,8 @@ path, so the robot can reach every target's start). A layout whose start cells c
 times; then the reset fails with a one-line :class:`~aia.config.errors.ConfigError`.
 
 The layouts are one numba kernel over the worlds (threads over worlds; rasterising each rectangle in its
-bounding box, the margin stamped around the obstacles' edge cells, the groups by union-find over runs of
-cells; ``benchmarks/map_generation.py`` times it).
+bounding box into runs of cells, each run widened by the margin in its neighbouring rows, the groups by
+union-find over the runs of start cells; ``benchmarks/map_generation.py`` times it).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ class RandomObstacles:
         self.draws = 1 + _OBSTACLE_DRAWS * int(config.num_obstacles[1])
         self.min_cells = max(1, math.ceil(config.min_start_area * self.shape[0] * self.shape[1]))
         self._shapes = np.array([RANDOM_SHAPES.index(s) for s in config.shapes], dtype=np.int64)
-        self._kernel = margin_kernel(margin, self.resolution)
+        self._half_widths = margin_rows(margin, self.resolution)
         self._wall_cells = math.ceil(margin / self.resolution)
 
     def generate(self, keys: Tensor, worlds: Tensor | None = None,
@@ -77,7 +77,7 @@ class RandomObstacles:
             counts = _layouts(
                 u.numpy(), worlds[todo].numpy(), self._shapes, int(cfg.num_obstacles[0]), int(cfg.num_obstacles[1]),
                 float(cfg.length[0]), float(cfg.length[1]), float(cfg.width[0]), float(cfg.width[1]),
-                math.radians(cfg.rotation_deg), self.resolution, self._kernel, self._wall_cells, *arrays)
+                math.radians(cfg.rotation_deg), self.resolution, self._half_widths, self._wall_cells, *arrays)
             todo = todo[torch.from_numpy(counts < self.min_cells)]
             if todo.numel() == 0:
                 return out
@@ -91,23 +91,24 @@ def start_cells(occupancy: Tensor, resolution: float, margin: float) -> Tensor:
     grid = np.ascontiguousarray(occupancy.cpu().numpy().astype(np.bool_))
     starts = np.empty_like(grid)
     row_starts = np.empty(grid.shape[:2], dtype=np.int64)
-    _start_cells_all(grid, margin_kernel(margin, resolution), math.ceil(margin / resolution), starts, row_starts)
+    _start_cells_all(grid, margin_rows(margin, resolution), math.ceil(margin / resolution), starts, row_starts)
     return torch.from_numpy(starts)
 
 
-def margin_kernel(margin: float, resolution: float) -> np.ndarray:
-    """``[K, 2]`` the offsets ``(drow, dcol)`` of the cells whose square lies within ``margin`` of the square of
-    the cell at ``(0, 0)`` (the gap is ``max(|d| - 1, 0)`` cells along each axis): an occupied cell makes them
-    unfit to start in."""
+def margin_rows(margin: float, resolution: float) -> np.ndarray:
+    """``[2 R + 1]``: for each row offset ``drow`` in ``-R..R``, the largest ``|dcol|`` such that the square of cell
+    ``(drow, dcol)`` lies within ``margin`` of the square of cell ``(0, 0)`` (the gap is ``max(|d| - 1, 0)`` cells
+    along each axis; -1: none). An occupied cell makes those cells unfit to start in."""
     reach = math.ceil(margin / resolution) + 1
-    offsets = [(dr, dc) for dr in range(-reach, reach + 1) for dc in range(-reach, reach + 1)
-               if (max(abs(dr) - 1, 0) ** 2 + max(abs(dc) - 1, 0) ** 2) * resolution**2 < margin**2]
-    return np.array(offsets, dtype=np.int64).reshape(-1, 2)
+    widths = [max((dc for dc in range(reach + 1)
+                   if (max(abs(dr) - 1, 0) ** 2 + max(dc - 1, 0) ** 2) * resolution**2 < margin**2), default=-1)
+              for dr in range(-reach, reach + 1)]
+    return np.array(widths, dtype=np.int64)
 
 
 @numba.njit(parallel=True, cache=True)
 def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_lo, width_hi, rotation, resolution,
-             kernel, wall_cells, occupancy, starts, row_starts):  # pragma: no cover - compiled
+             half_widths, wall_cells, occupancy, starts, row_starts):  # pragma: no cover - compiled
     """Rasterise the layout of each row of ``u`` into ``occupancy[worlds[i]]`` and its start cells into
     ``starts[worlds[i]]`` (their number per row into ``row_starts[worlds[i]]``); returns each layout's number of
     start cells."""
@@ -116,7 +117,8 @@ def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_
         grid = occupancy[worlds[i]]
         grid[:] = False
         draws = u[i]
-        boxes = np.empty((2 * count_hi, 4), dtype=np.int64)  # the rectangles' cell ranges (_start_cells' scan)
+        runs = np.empty((2 * count_hi * grid.shape[0], 3), dtype=np.int64)  # the occupied runs: row, first, last
+        n = 0
         count = count_lo + min(int(draws[0] * (count_hi - count_lo + 1)), count_hi - count_lo)
         for k in range(count):
             d = draws[1 + 7 * k: 8 + 7 * k]
@@ -127,32 +129,43 @@ def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_
             b = length_lo + d[5] * (length_hi - length_lo)
             w = width_lo + d[6] * (width_hi - width_lo)
             if shape == 0:    # box
-                _rectangle(grid, boxes[2 * k], resolution, cx, cy, angle, 0.0, 0.0, a / 2, w / 2)
-                boxes[2 * k + 1] = boxes[2 * k]
+                n = _rectangle(grid, runs, n, resolution, cx, cy, angle, 0.0, 0.0, a / 2, w / 2)
             elif shape == 1:  # l: arms along x and y from a corner, centred on its bounding box
                 sx, sy = max(a, w) / 2, max(b, w) / 2
-                _rectangle(grid, boxes[2 * k], resolution, cx, cy, angle, a / 2 - sx, w / 2 - sy, a / 2, w / 2)
-                _rectangle(grid, boxes[2 * k + 1], resolution, cx, cy, angle, w / 2 - sx, b / 2 - sy, w / 2, b / 2)
+                n = _rectangle(grid, runs, n, resolution, cx, cy, angle, a / 2 - sx, w / 2 - sy, a / 2, w / 2)
+                n = _rectangle(grid, runs, n, resolution, cx, cy, angle, w / 2 - sx, b / 2 - sy, w / 2, b / 2)
             else:             # t: a bar and a stem down from its middle, centred on its bounding box
                 sy = (w - max(b, w)) / 2
-                _rectangle(grid, boxes[2 * k], resolution, cx, cy, angle, 0.0, -sy, a / 2, w / 2)
-                _rectangle(grid, boxes[2 * k + 1], resolution, cx, cy, angle, 0.0, (w - b) / 2 - sy, w / 2, b / 2)
-        counts[i] = _start_cells(grid, kernel, wall_cells, boxes[:2 * count], starts[worlds[i]],
-                                 row_starts[worlds[i]])
+                n = _rectangle(grid, runs, n, resolution, cx, cy, angle, 0.0, -sy, a / 2, w / 2)
+                n = _rectangle(grid, runs, n, resolution, cx, cy, angle, 0.0, (w - b) / 2 - sy, w / 2, b / 2)
+        counts[i] = _start_cells(runs[:n], half_widths, wall_cells, starts[worlds[i]], row_starts[worlds[i]])
     return counts
 
 
 @numba.njit(cache=True)
-def _start_cells_all(occupancy, kernel, wall_cells, starts, row_starts):  # pragma: no cover - compiled
-    whole = np.array([[0, occupancy.shape[1] - 1, 0, occupancy.shape[2] - 1]])
+def _start_cells_all(occupancy, half_widths, wall_cells, starts, row_starts):  # pragma: no cover - compiled
+    ny, nx = occupancy.shape[1:]
     for i in range(occupancy.shape[0]):
-        _start_cells(occupancy[i], kernel, wall_cells, whole, starts[i], row_starts[i])
+        runs = np.empty((ny * ((nx + 1) // 2), 3), dtype=np.int64)
+        n = 0
+        for r in range(ny):
+            col = 0
+            while col < nx:
+                if occupancy[i, r, col]:
+                    lo = col
+                    while col < nx and occupancy[i, r, col]:
+                        col += 1
+                    runs[n, 0], runs[n, 1], runs[n, 2] = r, lo, col - 1
+                    n += 1
+                col += 1
+        _start_cells(runs[:n], half_widths, wall_cells, starts[i], row_starts[i])
 
 
 @numba.njit(cache=True)
-def _rectangle(grid, box, resolution, cx, cy, angle, lx, ly, hx, hy):  # pragma: no cover - compiled
+def _rectangle(grid, runs, n, resolution, cx, cy, angle, lx, ly, hx, hy):  # pragma: no cover - compiled
     """Occupy the cells whose centre lies in the rectangle of half extents ``(hx, hy)`` centred at ``(lx, ly)``
-    in the frame of an obstacle at ``(cx, cy)`` turned by ``angle``; ``box`` gets the cell ranges scanned."""
+    in the frame of an obstacle at ``(cx, cy)`` turned by ``angle`` (a run of cells in each row it covers: the
+    rectangle is convex); append the runs to ``runs`` from row ``n`` and return the new number of runs."""
     c, s = math.cos(angle), math.sin(angle)
     wx, wy = cx + lx * c - ly * s, cy + lx * s + ly * c
     ex, ey = abs(c) * hx + abs(s) * hy, abs(s) * hx + abs(c) * hy
@@ -162,37 +175,37 @@ def _rectangle(grid, box, resolution, cx, cy, angle, lx, ly, hx, hy):  # pragma:
     col1 = min(nx - 1, int(math.floor((wx + ex) / resolution - 0.5)))
     row0 = max(0, int(math.ceil((wy - ey) / resolution - 0.5)))
     row1 = min(ny - 1, int(math.floor((wy + ey) / resolution - 0.5)))
-    box[0], box[1], box[2], box[3] = row0, row1, col0, col1
     for r in range(row0, row1 + 1):
         dy = (r + 0.5) * resolution - wy
+        lo, hi = nx, -1
         for col in range(col0, col1 + 1):
             dx = (col + 0.5) * resolution - wx
             if abs(dx * c + dy * s) <= hx and abs(-dx * s + dy * c) <= hy:
-                grid[r, col] = True
+                lo, hi = min(lo, col), col
+        if lo <= hi:
+            grid[r, lo:hi + 1] = True
+            runs[n, 0], runs[n, 1], runs[n, 2] = r, lo, hi
+            n += 1
+    return n
 
 
 @numba.njit(cache=True)
-def _start_cells(grid, kernel, wall_cells, boxes, starts, row_starts):  # pragma: no cover - compiled
-    """Write the start cells of ``grid`` into ``starts`` (both ``[ny, nx]``), their number per row into
-    ``row_starts [ny]``, and return their number; every occupied cell lies in one of ``boxes`` (``[n, 4]`` row
-    and column ranges, ends included)."""
-    ny, nx = grid.shape
+def _start_cells(runs, half_widths, wall_cells, starts, row_starts):  # pragma: no cover - compiled
+    """Write into ``starts [ny, nx]`` the start cells of the map whose occupied cells are ``runs`` (``[n, 3]``: row,
+    first and last column), their number per row into ``row_starts [ny]``, and return their number."""
+    ny, nx = starts.shape
     starts[:] = False
     for r in range(wall_cells, ny - wall_cells):
-        for col in range(wall_cells, nx - wall_cells):
-            starts[r, col] = not grid[r, col]
-    # The margin around each occupied cell with a free 4-neighbour (an inner cell's lies within its edge's).
-    for b in range(boxes.shape[0]):
-        for r in range(boxes[b, 0], boxes[b, 1] + 1):
-            for col in range(boxes[b, 2], boxes[b, 3] + 1):
-                if not grid[r, col]:
-                    continue
-                if ((r > 0 and not grid[r - 1, col]) or (r < ny - 1 and not grid[r + 1, col])
-                        or (col > 0 and not grid[r, col - 1]) or (col < nx - 1 and not grid[r, col + 1])):
-                    for k in range(kernel.shape[0]):
-                        rr, cc = r + kernel[k, 0], col + kernel[k, 1]
-                        if 0 <= rr < ny and 0 <= cc < nx:
-                            starts[rr, cc] = False
+        starts[r, wall_cells:nx - wall_cells] = True
+    # The margin: each occupied run, widened by half_widths[drow] in the rows drow away (runs filled whole).
+    reach = (half_widths.shape[0] - 1) // 2
+    for k in range(runs.shape[0]):
+        r, lo, hi = runs[k, 0], runs[k, 1], runs[k, 2]
+        starts[r, lo:hi + 1] = False
+        for dr in range(-reach, reach + 1):
+            h = half_widths[dr + reach]
+            if h >= 0 and 0 <= r + dr < ny:
+                starts[r + dr, max(0, lo - h):min(nx, hi + h + 1)] = False
     # The largest 4-connected group: union-find over the runs of free cells of each row.
     capacity = ny * ((nx + 1) // 2)
     run_row = np.empty(capacity, dtype=np.int64)
