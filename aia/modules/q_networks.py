@@ -118,17 +118,20 @@ class ConvTorso(nn.Sequential):
                 "conv_layers", layers, "a non-empty list of [filters, kernel, stride], each an integer >= 1")
         modules: list[nn.Module] = []
         size = im_size
+        activation_class = _activation(activation)
         for filters, kernel, stride in layers:
             before, after, size = same_padding(size, kernel, stride)
             modules += [nn.ZeroPad2d((before, after, before, after)), nn.Conv2d(channels, filters, kernel, stride),
-                        _activation(activation)()]
+                        activation_class()]
             channels = filters
         super().__init__(*modules)
+        self.activation_class = activation_class
         self.out_features = channels * size * size
 
-    def convolutions(self) -> list[nn.Conv2d]:
-        """The convolutions, first to last."""
-        return [module for module in self if isinstance(module, nn.Conv2d)]
+    def convolutions(self) -> list[tuple[nn.Conv2d, tuple[int, int, int, int]]]:
+        """The convolutions, first to last, each with its padding ``(left, right, top, bottom)``."""
+        modules = list(self)
+        return [(conv, pad.padding) for pad, conv in zip(modules[0::3], modules[1::3], strict=True)]
 
 
 class ConvQNetwork(nn.Module):

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from aia.modules.q_networks import ADFQNetwork, ConvQNetwork, ConvTorso
+from aia.modules.q_networks import ADFQNetwork, ConvQNetwork
 
 
 def _linears(network: nn.Module) -> tuple[list[nn.Linear], type[nn.Module]]:
@@ -144,14 +144,6 @@ class StackedQNetwork(nn.Module):
         return mean, log_sd.clamp(*self.log_sd_bounds)
 
 
-def _convolutions(torso: ConvTorso) -> tuple[list[tuple[nn.Conv2d, tuple[int, ...]]], type[nn.Module]]:
-    """A :class:`~aia.modules.ConvTorso`'s convolutions with their padding (left, right, top, bottom), and its
-    activation class."""
-    modules = list(torso)
-    layers = [(conv, pad.padding) for pad, conv in zip(modules[0::3], modules[1::3], strict=True)]
-    return layers, type(modules[2])
-
-
 class StackedConvQNetwork(nn.Module):
     """``P`` :class:`~aia.modules.ConvQNetwork` s evaluated as one: ``observation`` ``[P, ..., F]`` and
     ``local_map`` ``[P, ..., C, H, W]`` to the heads' outputs ``[P, ..., A]`` (ADFQ: ``(mean, log_sd)``).
@@ -189,17 +181,18 @@ class StackedConvQNetwork(nn.Module):
     def stack(cls, networks: Sequence[ConvQNetwork], inner_dtype: torch.dtype | None = None) -> StackedConvQNetwork:
         """One stacked network holding a copy of each of ``networks`` (same architecture), member ``k`` =
         ``networks[k]``; ``inner_dtype``: the heads' (:meth:`StackedQNetwork.forward`)."""
-        torsos = [_convolutions(network.torso) for network in networks]
-        shapes = {str([(tuple(conv.weight.shape), conv.stride, padding) for conv, padding in layers] + [act.__name__])
-                  for layers, act in torsos}
+        torsos = [network.torso.convolutions() for network in networks]
+        shapes = {str([(tuple(conv.weight.shape), conv.stride, padding) for conv, padding in layers]
+                      + [network.torso.activation_class.__name__])
+                  for layers, network in zip(torsos, networks, strict=True)}
         if len(shapes) > 1:
             raise ValueError(f"the members' conv torsos differ in architecture: {sorted(shapes)}")
-        layers, activation = torsos[0]
-        weights = [torch.stack([t[i][0].weight.detach() for t, _ in torsos]) for i in range(len(layers))]
-        biases = [torch.stack([t[i][0].bias.detach() for t, _ in torsos]) for i in range(len(layers))]
+        layers = torsos[0]
+        weights = [torch.stack([t[i][0].weight.detach() for t in torsos]) for i in range(len(layers))]
+        biases = [torch.stack([t[i][0].bias.detach() for t in torsos]) for i in range(len(layers))]
         head = StackedQNetwork.stack([network.head for network in networks], inner_dtype)
         return cls(weights, biases, [padding for _, padding in layers], [conv.stride[0] for conv, _ in layers],
-                   activation, head)
+                   networks[0].torso.activation_class, head)
 
     @property
     def num_members(self) -> int:
@@ -213,7 +206,7 @@ class StackedConvQNetwork(nn.Module):
 
     def _pairs(self, network: ConvQNetwork) -> list[tuple[nn.Parameter, nn.Parameter, nn.Conv2d]]:
         return [(getattr(self, f"conv_weight{i}"), getattr(self, f"conv_bias{i}"), conv)
-                for i, (conv, _) in enumerate(_convolutions(network.torso)[0])]
+                for i, (conv, _) in enumerate(network.torso.convolutions())]
 
     def unstack_into(self, member: int, network: ConvQNetwork) -> ConvQNetwork:
         """Copy member ``member``'s parameters into ``network`` (of the stacked architecture); returns it."""

@@ -31,8 +31,8 @@ def _inputs(members: int, batch: tuple[int, ...], channels: int = 1, im_size: in
 
 def test_the_authors_torso_and_tensorflows_same_padding():
     torso = ConvTorso(1, 28)  # ttenv v4: 28 x 28 -> 4 x 7 x 7 -> 8 x 4 x 4
-    assert [(c.in_channels, c.out_channels, c.kernel_size, c.stride) for c in torso.convolutions()] == [
-        (1, 4, (8, 8), (4, 4)), (4, 8, (4, 4), (2, 2))]
+    assert [(c.in_channels, c.out_channels, c.kernel_size, c.stride, pad) for c, pad in torso.convolutions()] == [
+        (1, 4, (8, 8), (4, 4), (2, 2, 2, 2)), (4, 8, (4, 4), (2, 2), (1, 2, 1, 2))]
     assert torso.out_features == 128
     assert torso(torch.zeros(2, 1, 28, 28)).shape == (2, 8, 4, 4)
     assert ConvTorso(5, 28).out_features == 128  # ttenv v5: 5 channels, the same image size
