@@ -27,8 +27,8 @@ from aia.training.stopping import StopOnSignals
 
 @hydra_app("aia-train", config_name="train", population="aia.apps.train.train_jobs")  # bad input: one line, exit 2
 def main(cfg: DictConfig) -> float:
-    """Entry point of ``aia-train``; returns the run's search objective (:func:`~aia.evaluation.search_objective`)."""
-    validate_train_config(cfg)
+    """Entry point of ``aia-train``; returns the run's search objective (:func:`~aia.evaluation.search_objective`).
+    :func:`train` validates the config before anything is written."""
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     choices = HydraConfig.get().runtime.choices
     print(f"training {cfg.algo.name} ({cfg.exploration.name}) on {choices.get('env')} for {cfg.frames} frames, "
@@ -50,7 +50,8 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
         print(f"training {learners} on {first.env.map} with {first.env.num_targets} target(s) for {first.frames} "
               f"frames as a population of {len(valid)}, seeds {[cfgs[i].seed for i in valid]}")
         with StopOnSignals() as stop:
-            states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop)
+            states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop,
+                                      validated=True)
         report_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], states)
         exit_if_stopped(stop, [out_dirs[i] for i in valid], states[0])
         return [search_objective(state.eval_scores) for state in states]

@@ -40,6 +40,7 @@ from torchrl.collectors import Collector
 from torchrl.record.loggers import Logger
 
 from aia.config.errors import ConfigError
+from aia.config.validation import validate_train_config
 from aia.evaluation import log_score_summary
 from aia.logging import MCAPLogger
 from aia.modules import PopulationQPolicy
@@ -64,16 +65,21 @@ def train(cfg: DictConfig, out_dir: Path, stop: StopOnSignals | None = None) -> 
     return train_population([cfg], [out_dir], stop)[0]
 
 
-def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop: StopOnSignals | None = None
-                     ) -> list[TrainingState]:
+def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop: StopOnSignals | None = None, *,
+                     validated: bool = False) -> list[TrainingState]:
     """Train one member per config, member ``k`` in ``out_dirs[k]``, as one batched program; returns each
-    member's final counters (metrics go to each member's logger, closed on any exit). Each member's folder is
+    member's final counters (metrics go to each member's logger, closed on any exit). Every config is checked
+    (:func:`~aia.config.validation.validate_train_config`) unless ``validated``: the population launcher's entry
+    checks each job itself, so that a bad job of a sweep fails alone. Each member's folder is
     locked for the run (:mod:`.folder_lock`: a folder in use raises :class:`~aia.config.errors.FolderLocked`). Once
     ``stop`` has seen a signal, the loop ends at the end of the current episode as at the end of its budget:
     pending evaluations played, every member's checkpoint written, the logs marked stopped. A failed write of a
     log or a checkpoint raises :class:`~aia.config.errors.WriteFailed` after every log is closed marked failed."""
     if len(cfgs) != len(out_dirs):
         raise ValueError(f"{len(cfgs)} configs for {len(out_dirs)} run folders")
+    if not validated:
+        for cfg in cfgs:
+            validate_train_config(cfg)
     check_population(cfgs)
     out_dirs = [Path(d) for d in out_dirs]
     with folder_locks(out_dirs, cfgs[0].lock_wait_s):
