@@ -94,7 +94,7 @@ def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None
 
 def check_checkpoint_file(key: str, path: Path) -> None:
     """``path`` is an existing, undamaged checkpoint file (every record's CRC-32 checked)."""
-    from aia.training.checkpoint import PREVIOUS_CHECKPOINT_NAME  # imported here: aia-rollout never loads aia.training
+    from aia.training.checkpoint import PREVIOUS_CHECKPOINT_NAME  # imported here: aia.training imports this module
     from aia.training.checkpoint_files import checkpoint_damage
 
     require(path.is_file(), key, str(path), "an existing checkpoint .pt file written by aia-train")
