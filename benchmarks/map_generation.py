@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import resource
 import statistics
@@ -35,8 +36,9 @@ from aia.envs.sensing import WorldMapGeometry
 HERE = Path(__file__).resolve().parent
 
 
-def generation_seconds(batch_size: int, device: str, repeats: int) -> list[float]:
-    """Seconds per call of generating and installing ``batch_size`` maps, one per repeat (after a warm-up)."""
+def generation_seconds(batch_size: int, device: str, repeats: int) -> tuple[list[float], list[float]]:
+    """Wall-clock and CPU seconds (all threads: what the call costs on a machine shared with other work) per call of
+    drawing ``batch_size`` maps, one per repeat (after a warm-up)."""
     config = load_env_config("random_obstacles")
     layouts = RandomObstacles(config.random_map, config.margin)
     geometry = WorldMapGeometry(batch_size, tuple(config.random_map.size), config.random_map.resolution,
@@ -44,15 +46,16 @@ def generation_seconds(batch_size: int, device: str, repeats: int) -> list[float
                                 config.collision_supersample, device)
     world = rng.world_keys(0, batch_size, device)
     worlds = torch.arange(batch_size, device=device)
-    seconds = []
+    seconds, cpu = [], []
     for episode in range(repeats + 1):
         keys = rng.episode_keys(world, torch.full_like(world, episode + 1))
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         geometry.draw_maps(worlds, layouts, keys)
         if device != "cpu":
             torch.cuda.synchronize(device)
         seconds.append(time.perf_counter() - start)
-    return seconds[1:]
+        cpu.append(time.process_time() - start_cpu)
+    return seconds[1:], cpu[1:]
 
 
 def peak_memory(batch_size: int, device: str, steps: int, compile: bool) -> float:
@@ -79,16 +82,18 @@ def main() -> None:
         print(peak_memory(args.batch_size, args.device, args.steps, args.compile))
         return
 
-    seconds = generation_seconds(args.batch_size, args.device, args.repeats)
+    seconds, cpu = generation_seconds(args.batch_size, args.device, args.repeats)
     command = [sys.executable, __file__, "--memory-only", "--batch-size", str(args.batch_size), "--device",
                args.device, "--steps", str(args.steps), *(["--compile"] if args.compile else [])]
     memory = float(subprocess.run(command, capture_output=True, text=True, check=True).stdout.split()[-1])
     result = {"batch_size": args.batch_size, "device": args.device,
               "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
               "generation_s_median": statistics.median(seconds), "generation_s": seconds,
+              "generation_cpu_s_median": statistics.median(cpu), "load_average": os.getloadavg()[0],
               "peak_memory_gb": memory, "compiled": args.compile}
     print(f"new maps for {args.batch_size} worlds: {result['generation_s_median']:.3f} s (median of "
-          f"{args.repeats}; {min(seconds):.3f}-{max(seconds):.3f})")
+          f"{args.repeats}; {min(seconds):.3f}-{max(seconds):.3f}), {statistics.median(cpu):.3f} CPU s over all "
+          f"threads (load average {os.getloadavg()[0]:.1f})")
     print(f"env at {args.batch_size} worlds ({'compiled' if args.compile else 'eager'}, {args.steps} steps): "
           f"peak memory {memory:.2f} GB")
     out = args.out or HERE / "results" / f"map_generation_{args.device}.json"

@@ -16,8 +16,9 @@ Two geometries answer the same queries with the same definitions:
 
 * :class:`WorldMapGeometry`, one map per world (``occupancy [B, ny, nx]``, every map of one shape), replaced
   at any reset (:mod:`aia.envs.map_generator`). Its tables would cost more per episode than the queries they
-  save (the collision grids of 4,096 maps of 181 x 181 cells are 2.1 GB, the ray tables 16 MB a map), so it
-  computes the same values from the occupancy when asked: the collision test of the fine cell a point falls
+  save (the collision grids of 4,096 maps of 181 x 181 cells are 2.1 GB, the ray tables 16 MB and about a
+  second to build a map: over an hour per episode of 4,096 worlds), so it computes the same values from the
+  occupancy when asked: the collision test of the fine cell a point falls
   in, and the ray table's entries along the bins in view. Each result equals :class:`MapGeometry`'s on the
   world's own map (``tests/envs/test_sensing.py``).
 """
@@ -46,7 +47,11 @@ Occupied = Callable[[Tensor, Tensor], Tensor]
 
 class Geometry(ABC):
     """What both geometries share: the map's frame, the sensor, the walls, and the queries built on a map's
-    occupancy (line of sight, the closest obstacle in view)."""
+    occupancy (line of sight, the closest obstacle in view).
+
+    ``occupancy`` is ``[ny, nx]`` (one map) or ``[B, ny, nx]`` (one per world); ``occupancy.expand(B, ny, nx)``
+    reads each world's grid either way, without a copy (what a local-map observation gathers from).
+    """
 
     def __init__(self, size: tuple[float, float], shape: tuple[int, int], resolution: float, margin: float,
                  sensor_range: float, fov: float, ray_spacing: float, collision_supersample: int,
@@ -387,8 +392,8 @@ def _near_occupied(occupied: Occupied, fine_row: Tensor, fine_col: Tensor, shape
     the collision rule, for the grid :class:`MapGeometry` precomputes and the points
     :class:`WorldMapGeometry` asks about (the same float64 arithmetic, so the same bits).
 
-    The map cells within reach of the margin are a short loop over window offsets, each vectorised over all
-    the fine cells.
+    The map cells within reach of the margin are a short loop over row offsets, each vectorised over the fine
+    cells and the column offsets (a trailing dimension): 7 passes for ``obstacles4``'s 0.5 m margin at 0.2 m.
     """
     ny, nx = shape
     fine = resolution / supersample
@@ -401,15 +406,16 @@ def _near_occupied(occupied: Occupied, fine_row: Tensor, fine_col: Tensor, shape
     col = torch.div(fine_col, supersample, rounding_mode="floor")
     row = torch.div(fine_row, supersample, rounding_mode="floor")
     reach = math.ceil(margin / resolution)
+    offsets = torch.arange(-reach, reach + 1, device=fine_col.device)
+    c = (col.unsqueeze(-1) + offsets).clamp(0, nx - 1)
+    x0 = c.double() * resolution
+    # Distance along x from the fine-cell centre to the square of map cell (., c), then along y for each row.
+    dx = torch.clamp(torch.maximum(x0 - px.unsqueeze(-1), px.unsqueeze(-1) - (x0 + resolution)), min=0.0)
     for dr in range(-reach, reach + 1):
-        for dc in range(-reach, reach + 1):
-            r = (row + dr).clamp(0, ny - 1)
-            c = (col + dc).clamp(0, nx - 1)
-            # Distance from the fine-cell centre to the square of map cell (r, c).
-            x0, y0 = c.double() * resolution, r.double() * resolution
-            dx = torch.clamp(torch.maximum(x0 - px, px - (x0 + resolution)), min=0.0)
-            dy = torch.clamp(torch.maximum(y0 - py, py - (y0 + resolution)), min=0.0)
-            near = near | (occupied(r, c) & (dx * dx + dy * dy < margin * margin))
+        r = (row + dr).clamp(0, ny - 1).unsqueeze(-1)
+        y0 = r.double() * resolution
+        dy = torch.clamp(torch.maximum(y0 - py.unsqueeze(-1), py.unsqueeze(-1) - (y0 + resolution)), min=0.0)
+        near = near | (occupied(r, c) & (dx * dx + dy * dy < margin * margin)).any(-1)
     return near
 
 
