@@ -19,16 +19,17 @@ path, so the robot can reach every target's start). A layout whose start cells c
 ``min_start_area`` of the map is drawn again from the next counter of the world's stream, up to ``attempts``
 times; then the reset fails with a one-line :class:`~aia.config.errors.ConfigError`.
 
-The layouts are one numba kernel over the worlds (threads over worlds; rasterising each rectangle in its
-bounding box into runs of cells, each run widened by the margin in its neighbouring rows, the groups by
-union-find over the runs of start cells): 43 us a map on one thread (181 x 181 cells, 4-8 obstacles); new maps
-for 4,096 worlds, the draws included, 0.28 CPU seconds over the 2-core VM's threads (0.8-1.1 s wall while it
-ran at load average 12; ``benchmarks/map_generation.py``).
+The layouts are one numba kernel, run in torch's CPU threads, each a share of the worlds (rasterising each
+rectangle in its bounding box into runs of cells, each run widened by the margin in its neighbouring rows,
+the groups by union-find over the runs of start cells): 43 us a map on one thread (181 x 181 cells, 4-8
+obstacles); new maps for 4,096 worlds, the draws included, 0.28 CPU seconds over the 2-core VM's threads
+(0.8-1.1 s wall while it ran at load average 12; ``benchmarks/map_generation.py``).
 """
 
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -74,18 +75,26 @@ class RandomObstacles:
         arrays = tuple(t.numpy() for t in out)
         worlds, todo = worlds.cpu(), torch.arange(keys.shape[0])
         cfg = self.config
+        shape_args = (self._shapes, int(cfg.num_obstacles[0]), int(cfg.num_obstacles[1]), float(cfg.length[0]),
+                      float(cfg.length[1]), float(cfg.width[0]), float(cfg.width[1]), math.radians(cfg.rotation_deg),
+                      self.resolution, self._half_widths, self._wall_cells, *arrays)
         for attempt in range(cfg.attempts):
             u = rng.uniform(keys[todo], torch.full_like(todo, attempt), rng.WorldStream.MAP, self.draws, torch.float64)
-            counts = _layouts(
-                u.numpy(), worlds[todo].numpy(), self._shapes, int(cfg.num_obstacles[0]), int(cfg.num_obstacles[1]),
-                float(cfg.length[0]), float(cfg.length[1]), float(cfg.width[0]), float(cfg.width[1]),
-                math.radians(cfg.rotation_deg), self.resolution, self._half_widths, self._wall_cells, *arrays)
+            counts = _in_threads(u.numpy(), worlds[todo].numpy(), shape_args)
             todo = todo[torch.from_numpy(counts < self.min_cells)]
             if todo.numel() == 0:
                 return out
         raise ConfigError("env.random_map", f"{todo.numel()} of {keys.shape[0]} worlds",
                           f"layouts whose connected start cells cover min_start_area={cfg.min_start_area} of the map "
                           f"within attempts={cfg.attempts} draws (fewer, shorter or thinner obstacles)")
+
+
+def _in_threads(u: np.ndarray, rows: np.ndarray, shape_args: tuple) -> np.ndarray:
+    """:func:`_layouts` of the draws ``u`` into ``rows``, in torch's CPU threads, each a share of the worlds (the
+    kernel releases the GIL); each layout's number of start cells."""
+    parts = np.array_split(np.arange(rows.shape[0]), max(1, min(torch.get_num_threads(), rows.shape[0])))
+    with ThreadPoolExecutor(len(parts)) as pool:
+        return np.concatenate(list(pool.map(lambda part: _layouts(u[part], rows[part], *shape_args), parts)))
 
 
 def start_cells(occupancy: Tensor, resolution: float, margin: float) -> Tensor:
@@ -108,14 +117,14 @@ def margin_rows(margin: float, resolution: float) -> np.ndarray:
     return np.array(widths, dtype=np.int64)
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True, nogil=True)
 def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_lo, width_hi, rotation, resolution,
              half_widths, wall_cells, occupancy, starts, row_starts):  # pragma: no cover - compiled
     """Rasterise the layout of each row of ``u`` into ``occupancy[worlds[i]]`` and its start cells into
     ``starts[worlds[i]]`` (their number per row into ``row_starts[worlds[i]]``); returns each layout's number of
     start cells."""
     counts = np.zeros(worlds.shape[0], dtype=np.int64)
-    for i in numba.prange(worlds.shape[0]):
+    for i in range(worlds.shape[0]):
         grid = occupancy[worlds[i]]
         grid[:] = False
         draws = u[i]
