@@ -8,7 +8,7 @@ import torch
 from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
-import aia.training.loop as loop
+import aia.training.population as population
 import aia.training.target_cache as target_cache
 from aia.envs import make_env
 from aia.modules.q_networks import make_qvalue_actor
@@ -118,7 +118,7 @@ def test_training_with_the_cache_is_training_without_it_bit_for_bit(tmp_path, mo
         return [torch.load(d / "checkpoints" / "last.pt", weights_only=False)["online"] for d in dirs]
 
     cached = final_parameters("cached")
-    monkeypatch.setattr(loop, "TargetCache", lambda *args, **kwargs: None)  # every sampled target computed
+    monkeypatch.setattr(population, "TargetCache", lambda *args, **kwargs: None)  # every sampled target computed
     computed = final_parameters("computed")
     for a, b in zip(cached, computed, strict=True):
         assert a.keys() == b.keys() and all(torch.equal(a[name], b[name]) for name in a)
