@@ -20,7 +20,7 @@ from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.config.validation import validate_train_config
 from aia.evaluation import search_objective
 from aia.runtime.timing import PhaseTimer
-from aia.training import TrainingState, train, train_population
+from aia.training import TrainingState, train_population
 from aia.training.checkpoint import CHECKPOINT_NAME
 from aia.training.stopping import StopOnSignals
 
@@ -28,13 +28,14 @@ from aia.training.stopping import StopOnSignals
 @hydra_app("aia-train", config_name="train", population="aia.apps.train.train_jobs")  # bad input: one line, exit 2
 def main(cfg: DictConfig) -> float:
     """Entry point of ``aia-train``; returns the run's search objective (:func:`~aia.evaluation.search_objective`).
-    :func:`train` validates the config before anything is written."""
+    The config is validated before anything is printed or written."""
+    validate_train_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     choices = HydraConfig.get().runtime.choices
     print(f"training {cfg.algo.name} ({cfg.exploration.name}) on {choices.get('env')} for {cfg.frames} frames, "
           f"seed {cfg.seed}")
     with StopOnSignals() as stop:
-        state = train(cfg, out_dir, stop)
+        state = train_population([cfg], [out_dir], stop, validated=True)[0]
     report(cfg, out_dir, state)
     exit_if_stopped(stop, [out_dir], state)
     return search_objective(state.eval_scores)

@@ -67,7 +67,7 @@ class SceneRecorder(Transform):
         self._recording, self._armed, self._step_index = self._armed, None, 0
         sensor = env.config.sensor
         self._encoder = FrameEncoder(sensor.range, sensor.fov_deg, self.sigma)
-        info = WorldInfo(env.map, sensor.range, sensor.fov_deg, env.num_targets, *self._recording)
+        info = WorldInfo(env.world_map(self.world), sensor.range, sensor.fov_deg, env.num_targets, *self._recording)
         run = self.logger.experiment
         stamp = run.now()
         run.write(run.channel(WORLD_TOPIC, schemas.SCENE_UPDATE), world_message(info, stamp), stamp)

@@ -30,11 +30,15 @@ class TrackingModel(NamedTuple):
     @classmethod
     def from_env(cls, env: TargetTrackingEnv) -> TrackingModel:
         """The model of ``env`` (its very tensors, cast to float64). ARVI plans with the Kalman filter's
-        linear-Gaussian model: a setting whose beliefs another filter keeps is refused in one line."""
+        linear-Gaussian model on one map that every world shares: a setting whose beliefs another filter keeps,
+        or whose worlds each draw their own map, is refused in one line."""
         cfg, f64, kf = env.config, torch.float64, env.belief_filter
         require(isinstance(kf, KalmanFilter), "env.belief.filter", cfg.belief.filter,
                 "kf (ARVI plans with the Kalman filter's linear-Gaussian model; use a learned or heuristic "
                 "policy on this setting)")
+        require(isinstance(env.geometry, MapGeometry), "env.map", cfg.map,
+                "a map file (ARVI plans on one map that every world shares; use a learned or heuristic policy "
+                "on random maps)")
         return cls(env.primitives.to(f64), cfg.dt, kf.transition.to(f64), kf.model.noise.to(f64),
                    env.meas_noise.to(f64), kf.log_det_cap, env.geometry)
 

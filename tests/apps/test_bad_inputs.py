@@ -88,10 +88,10 @@ def test_debug_keeps_the_traceback(tmp_path, monkeypatch):
 
 
 def test_internal_errors_keep_their_traceback(tmp_path, monkeypatch):
-    def broken(cfg, out_dir, stop=None):
+    def broken(cfgs, out_dirs, stop=None, validated=False):
         raise RuntimeError("internal")
 
-    monkeypatch.setattr(train, "train", broken)
+    monkeypatch.setattr(train, "train_population", broken)
     monkeypatch.setattr(sys, "argv", ["app", f"hydra.run.dir={tmp_path}", *HYDRA_QUIET, "logger=none"])
     with pytest.raises(RuntimeError, match="internal"):
         train.main()

@@ -356,6 +356,8 @@ def test_bad_parameters_are_named():
     assert to_arvi_config({"horizon": 6, "eps": "inf"}) == ARVIConfig(horizon=6)
 
 
-def test_arvi_refuses_a_setting_without_a_kalman_filter_in_one_line():
+def test_arvi_refuses_a_setting_without_a_kalman_filter_or_with_random_maps_in_one_line():
     with pytest.raises(ConfigError, match=r"env.belief.filter='ukf': expected kf \(ARVI plans"):
         model.TrackingModel.from_env(make_env("ttenv_v2", transforms=False))
+    with pytest.raises(ConfigError, match=r"env.map='random_obstacles': expected a map file \(ARVI plans on one"):
+        model.TrackingModel.from_env(make_env("random_obstacles", batch_size=2, transforms=False))
