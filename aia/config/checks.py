@@ -130,6 +130,22 @@ class Widths:
 
 
 @dataclass(frozen=True)
+class ConvLayers:
+    """A non-empty list of convolutions, each ``[filters, kernel, stride]`` of integers >= 1."""
+
+    @property
+    def allowed(self) -> str:
+        return "a non-empty list of [filters, kernel, stride], each an integer >= 1"
+
+    def __call__(self, key: str, value: Any) -> None:
+        layers = _plain_list(value)
+        require(isinstance(layers, (list, tuple)) and len(layers) > 0
+                and all(isinstance(layer, (list, tuple)) and len(layer) == 3
+                        and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in layer)
+                        for layer in layers), key, layers, self.allowed)
+
+
+@dataclass(frozen=True)
 class NamesFrom:
     """A non-empty list of names from ``names``."""
 

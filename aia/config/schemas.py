@@ -26,7 +26,7 @@ from typing import Any, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
 
-from aia.config.checks import Check, Choice, Device, Flag, NamesFrom, Number, Widths
+from aia.config.checks import Check, Choice, ConvLayers, Device, Flag, NamesFrom, Number, Widths
 from aia.logging.mcap_logger import COMPRESSIONS
 
 LOSS_FUNCTIONS = ("smooth_l1", "l2", "l1")
@@ -154,7 +154,7 @@ class TrainConfig:
     batch_size: int = setting(check=COUNT, resume=True)
     gamma: Any = setting(check=PROBABILITY, resume=True)
     hidden: list[int] = setting(check=Widths(), resume=True)
-    conv_layers: list[list[int]] = setting(resume=True)  # checked where built: aia.modules.ConvTorso
+    conv_layers: list[list[int]] = setting(check=ConvLayers(), resume=True)
     inner_dtype: str = setting(check=Choice(("float32", "bfloat16")))
     target_update_interval: int = setting(check=COUNT, resume=True)
     grad_clip: Any = setting(check=POSITIVE)

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 from torchrl.data import Categorical, Composite, TensorSpec
 from torchrl.modules import MLP, QValueModule
 
-from aia.config.checks import check_number, require
+from aia.config.checks import ConvLayers, check_number
 
 OBSERVATION_KEY, MAP_KEY = "observation", "local_map"
 # the authors' conv layers (filters, kernel, stride) for ttenv's map observations (ADFQ's cnn_plus_mlp, ReLU,
@@ -113,9 +113,7 @@ class ConvTorso(nn.Sequential):
         check_number("local_map.channels", channels, ge=1, integer=True)
         check_number("local_map.im_size", im_size, ge=1, integer=True)
         layers = [list(layer) for layer in layers]
-        require(len(layers) > 0 and all(len(layer) == 3 and all(isinstance(v, int) and not isinstance(v, bool)
-                                                                and v >= 1 for v in layer) for layer in layers),
-                "conv_layers", layers, "a non-empty list of [filters, kernel, stride], each an integer >= 1")
+        ConvLayers()("conv_layers", layers)
         modules: list[nn.Module] = []
         size = im_size
         activation_class = _activation(activation)
