@@ -8,11 +8,12 @@ uniform per target) and roughened against collapse (Gordon, Salmond and Smith 19
 ``roughening * E_j * K^(-1/d)`` times a zero-mean, unit-variance draw, with ``E_j`` the spread (max - min) of
 entry ``j`` over the particles before resampling (the heading's relative to the first particle). The jitter
 is uniform on ``[-sqrt(3), sqrt(3)]``, not Gaussian: the kernel only needs its scale, and without its Box-Muller
-normals (and the circular mean the spread needed) K = 256 steps 4,096 worlds in 79 ms compiled instead of 119. The Gaussian summary the features, reward and
-score read is the weighted mean (circular in the heading) and the weighted covariance ``sum_k w_k r_k r_k^T``
-of the particles. Every draw comes from the world's counter-based streams (:mod:`aia.rng`), so a world's
-beliefs do not depend on the batch. The det cap and the 2019 clipping do not apply (clipped particles pile up
-on the bound and their covariance loses rank); headings are wrapped.
+normals (and the circular mean the spread needed) K = 256 steps 4,096 worlds in 79 ms compiled instead of 119.
+The Gaussian summary the features, reward and score read is the weighted mean (circular in the heading) and
+the weighted covariance ``sum_k w_k r_k r_k^T`` of the particles. Every draw comes from the world's
+counter-based streams (:mod:`aia.rng`), so a world's beliefs do not depend on the batch. The det cap and the
+2019 clipping do not apply (clipped particles pile up on the bound and their covariance loses rank); headings
+are wrapped.
 """
 
 from __future__ import annotations
