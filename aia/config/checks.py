@@ -124,8 +124,7 @@ class Widths:
 
     def __call__(self, key: str, value: Any) -> None:
         widths = _plain_list(value)
-        require(isinstance(widths, list) and len(widths) > 0
-                and all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in widths),
+        require(isinstance(widths, list) and len(widths) > 0 and all(map(_positive_integer, widths)),
                 key, widths, self.allowed)
 
 
@@ -140,8 +139,7 @@ class ConvLayers:
     def __call__(self, key: str, value: Any) -> None:
         layers = _plain_list(value)
         require(isinstance(layers, (list, tuple)) and len(layers) > 0
-                and all(isinstance(layer, (list, tuple)) and len(layer) == 3
-                        and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in layer)
+                and all(isinstance(layer, (list, tuple)) and len(layer) == 3 and all(map(_positive_integer, layer))
                         for layer in layers), key, layers, self.allowed)
 
 
@@ -159,6 +157,11 @@ class NamesFrom:
         names = _plain_list(value)
         require(isinstance(names, list) and len(names) > 0 and set(names) <= set(self.names), key, names,
                 self.allowed)
+
+
+def _positive_integer(value: Any) -> bool:
+    """An int (not a bool) >= 1: a layer width, a filter count, a kernel size or a stride."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
 
 
 def _plain_list(value: Any) -> Any:
