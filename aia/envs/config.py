@@ -131,6 +131,16 @@ class FeatureConfig:
     # "exact": radial and angular rates of the belief mean seen from the moving robot;
     # "2019": the authors' 2019 formula (angular rate about the map origin, an extra |p| w term).
     relative_velocity: str = "exact"
+    # ttenv's map image under the observation key "local_map" (aia.transforms.LocalMap): "none", "occupancy"
+    # (TargetTracking-v4: the occupancy in front of the robot, 1 channel) or "occupancy_visits" (v5: and the
+    # visit frequencies left, right, in front of and behind that square, 5 channels).
+    local_map: str = "none"
+    # The image's side in map cells (ttenv: 28).
+    im_size: int = 28
+
+
+# features.local_map's layouts, and the channels of each.
+LOCAL_MAP_CHANNELS = {"none": 0, "occupancy": 1, "occupancy_visits": 5}
 
 
 @dataclass
@@ -204,12 +214,13 @@ _CHOICES = {
     "belief.init_anchor": ("target", "robot"),
     "belief.init_offset_shape": ("disk", "box"),
     "features.relative_velocity": ("exact", "2019"),
+    "features.local_map": tuple(LOCAL_MAP_CHANNELS),
     "reward.target_aggregate": ("mean", "sum"),
     "reward.obstacle_form": ("2019", "paper"),
     "dtype": ("float32", "float64"),
 }
 _POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "target.init_candidates",
-                      "belief.particles")
+                      "belief.particles", "features.im_size")
 _POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing",
              "belief.init_cov", "target.sine_step", "belief.ukf_kappa")
 _NON_NEGATIVE = ("margin", "target.q", "target.reflect_noise_std", "robot.target_margin", "belief.init_offset",

@@ -19,9 +19,10 @@ import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's Con
 from aia.config.checks import check_choice
 from aia.config.errors import ConfigError, one_line
 from aia.envs.config import TrackingConfig
+from aia.envs.sensing import Geometry
 from aia.envs.tracking import TargetTrackingEnv
 from aia.envs.transformed import TrackingTransformedEnv
-from aia.transforms import BeliefFeatures, InfoReward
+from aia.transforms import BeliefFeatures, InfoReward, LocalMap
 
 
 def available_settings() -> list[str]:
@@ -60,12 +61,16 @@ def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
         raise ConfigError(f"env.{err.full_key}", err.value, allowed) from None
 
 
-def make_transforms(config: TrackingConfig, compile: bool = False) -> Compose:
-    """The feature and reward transforms of a setting (SPEC 6 and 7)."""
-    return Compose(
-        BeliefFeatures(config.features.relative_velocity, compile=compile),
-        InfoReward(config.reward, compile=compile),
-    )
+def make_transforms(config: TrackingConfig, compile: bool = False, geometry: Geometry | None = None) -> Compose:
+    """The feature and reward transforms of a setting (SPEC 6 and 7), and the map image (``features.local_map``)
+    around the robot read from the env's ``geometry``."""
+    transforms = [BeliefFeatures(config.features.relative_velocity, compile=compile)]
+    if config.features.local_map != "none":
+        if geometry is None:
+            raise ValueError(f"features.local_map={config.features.local_map!r} needs the env's geometry")
+        transforms.append(LocalMap(geometry, config.features.local_map, config.features.im_size, config.dt,
+                                   config.sensor.obstacle_ray_spacing))
+    return Compose(*transforms, InfoReward(config.reward, compile=compile))
 
 
 def make_env(
@@ -91,4 +96,4 @@ def make_env(
     env = TargetTrackingEnv(
         config, batch_size=batch_size, device=device, seed=seed, validate_actions=validate_actions, compile_step=compile
     )
-    return TrackingTransformedEnv(env, make_transforms(config, compile)) if transforms else env
+    return TrackingTransformedEnv(env, make_transforms(config, compile, env.geometry)) if transforms else env

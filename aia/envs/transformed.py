@@ -13,11 +13,11 @@ from __future__ import annotations
 from tensordict import TensorDictBase
 from torchrl.envs import ExcludeTransform, SelectTransform, TransformedEnv
 
-from aia.transforms import BeliefFeatures, InfoReward
+from aia.transforms import BeliefFeatures, InfoReward, LocalMap
 
 # transforms that write no done entry (the key filters at most drop one): with only these, no world is done
 # while the base env says so (the training loop appends a SelectTransform)
-_DONE_PRESERVING = (BeliefFeatures, InfoReward, SelectTransform, ExcludeTransform)
+_DONE_PRESERVING = (BeliefFeatures, InfoReward, LocalMap, SelectTransform, ExcludeTransform)
 _ALL_RUNNING = "aia_all_running"  # the env's cache entry: the base env's all_running, or False
 
 

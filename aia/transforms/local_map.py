@@ -1,0 +1,213 @@
+"""``LocalMap``: the authors' ttenv map image around the robot (TargetTracking-v4 and -v5), batched over worlds.
+
+The image is ``local_map`` ``[B, C, H, W]``: ``H`` counts cells forward from the robot, ``W`` cells across from
+its left to its right (ttenv's ``local_map[c, r]``), ``im_size`` each, one map cell a pixel. Channel 0 is the
+occupancy of the square in front of the robot, ``-1`` free and ``+1`` occupied or outside the map (ttenv's
+``(occupied - 0.5) * 2``). With ``visits``, channels 1-4 are the visit frequencies of the squares of the same
+size left of, right of, in front of and behind it (ttenv's ``local_visit_map_surroundings``): ``+1`` on an
+occupied or outside cell, the world's visit frequency ``- 1`` on a cell at least ``margin`` from the bounds
+(ttenv's ``in_bound``), ``-1`` elsewhere.
+
+Each world keeps a visit-frequency map of its grid. A step first decays it by ``0.7`` to the power
+``dt * b / sensor_range`` (``b``: the mean speed of the beliefs, 0 for beliefs without a velocity), then sets to 1
+the cells the sensor's rays cross: rays every ``ray_spacing`` over the field of view, each the Bresenham line of
+cells from the robot's cell to the cell at the sensor's range, up to its first occupied or outside cell. A world
+that resets starts from zeros and marks its first view (ttenv's ``reset_visit_freq_map``).
+
+A point lies in the cell ``floor(xy / resolution)``; ttenv rounds ``xy / resolution - 0.5`` half away from zero
+(half to even at the rays' ends), which differs only for points exactly on a cell boundary.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import torch
+from tensordict import TensorDictBase
+from torch import Tensor
+from torchrl.data import Bounded, Composite
+from torchrl.envs.transforms import Transform
+
+from aia.envs.config import LOCAL_MAP_CHANNELS
+
+if TYPE_CHECKING:
+    from aia.envs.sensing import Geometry
+
+LOCAL_MAP_KEY = "local_map"
+# Each image's square, as (lateral, forward) of its corner behind and left, in image sides from the robot:
+# the occupancy in front; the visit frequencies left, right, in front of and behind that square (ttenv's order).
+OCCUPANCY_SQUARE = ((-0.5, 0.0),)
+VISIT_SQUARES = ((-1.5, 0.0), (0.5, 0.0), (-0.5, 1.0), (-0.5, -1.0))
+# ttenv: the visit frequencies fall to this fraction while a belief at the mean belief speed crosses the sensor range.
+VISIT_DECAY = 0.7
+OBSTACLE_VISIT = 2.0  # ttenv's visit value of an occupied cell (then shifted by -1 with the others)
+
+
+class LocalMap(Transform):
+    """Write the map image of ``geometry`` around ``robot_pose`` under ``out_key`` (default ``"local_map"``).
+
+    ``layout`` is ``"occupancy"`` (ttenv v4, 1 channel) or ``"occupancy_visits"`` (v5, 5 channels, with the
+    visit-frequency state per world, reset with the world). ``dt`` is the env's step, ``ray_spacing`` the angle
+    between the sensor's rays that mark cells visited.
+    """
+
+    def __init__(self, geometry: Geometry, layout: str = "occupancy", im_size: int = 28, dt: float = 0.5,
+                 ray_spacing: float = 0.05, out_key: str = LOCAL_MAP_KEY) -> None:
+        if LOCAL_MAP_CHANNELS.get(layout, 0) == 0:
+            raise ValueError(f"layout={layout!r} is not one of ['occupancy', 'occupancy_visits']")
+        super().__init__(in_keys=["robot_pose"], out_keys=[out_key])
+        self.geometry = geometry
+        self.channels = LOCAL_MAP_CHANNELS[layout]
+        self.im_size = im_size
+        self.dt = dt
+        squares = OCCUPANCY_SQUARE + (VISIT_SQUARES if self.channels > 1 else ())
+        self.squares = torch.tensor(squares, dtype=geometry.dtype, device=geometry.device)
+        rays = math.ceil(geometry.fov / ray_spacing)  # numpy's arange(-fov / 2, fov / 2, ray_spacing)
+        self.ray_angles = (torch.arange(rays, dtype=torch.float64) * ray_spacing - geometry.fov / 2).to(
+            geometry.device, geometry.dtype)
+        # the most cells a ray crosses along its longer axis, its first included
+        self.ray_cells = math.floor(geometry.sensor_range / geometry.resolution) + 2
+        self._visits: Tensor | None = None  # [B, ny * nx + 1]: each world's grid, then one cell for the rays' misses
+
+    @property
+    def visits(self) -> Tensor:
+        """``[B, ny, nx]`` each world's visit frequencies (row = y cell)."""
+        return self._visits[:, :-1].unflatten(1, self.geometry.shape)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        pose = next_tensordict.get("robot_pose")
+        if self.channels > 1:
+            decay = visit_decay(next_tensordict.get("belief_velocity", None), self.dt, self.geometry.sensor_range)
+            everyone = torch.ones(pose.shape[0], dtype=torch.bool, device=pose.device)
+            mark_visits(self._visits, self.geometry, pose, everyone, decay, self.ray_angles, self.ray_cells)
+        next_tensordict.set(self.out_keys[0], self._images(pose))
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase | None, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        pose = tensordict_reset.get("robot_pose")
+        if self.channels > 1:
+            worlds = pose.shape[0]
+            reset = None if tensordict is None else tensordict.get("_reset", None)
+            reset = torch.ones(worlds, dtype=torch.bool, device=pose.device) if reset is None else reset.reshape(worlds)
+            if self._visits is None or self._visits.shape[0] != worlds:
+                cells = self.geometry.shape[0] * self.geometry.shape[1] + 1
+                self._visits = torch.zeros(worlds, cells, dtype=pose.dtype, device=pose.device)
+            self._visits.masked_fill_(reset.unsqueeze(-1), 0.0)
+            mark_visits(self._visits, self.geometry, pose, reset, torch.ones_like(pose[:, 0]), self.ray_angles,
+                        self.ray_cells)
+        tensordict_reset.set(self.out_keys[0], self._images(pose))
+        return tensordict_reset
+
+    def _images(self, pose: Tensor) -> Tensor:
+        visits = self.visits if self.channels > 1 else None
+        return map_images(self.geometry, pose, self.squares, self.im_size, visits)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        pose_spec = observation_spec["robot_pose"]
+        shape = (*pose_spec.shape[:-1], self.channels, self.im_size, self.im_size)
+        observation_spec[self.out_keys[0]] = Bounded(low=-1.0, high=1.0, shape=shape, dtype=pose_spec.dtype,
+                                                     device=pose_spec.device)
+        return observation_spec
+
+
+def square_points(pose: Tensor, squares: Tensor, im_size: int, resolution: float) -> Tensor:
+    """``[B, S, H, W, 2]`` the world positions of the pixel centres of each square (``squares [S, 2]``: (lateral,
+    forward) of its corner in image sides) around ``pose [B, 3]``; ``H`` forward, ``W`` from left to right."""
+    side = im_size * resolution
+    centres = (torch.arange(im_size, dtype=pose.dtype, device=pose.device) + 0.5) * resolution
+    lateral = (squares[:, 0, None] * side + centres)[None, :, None, :]  # [1, S, 1, W], positive to the right
+    forward = (squares[:, 1, None] * side + centres)[None, :, :, None]  # [1, S, H, 1]
+    x, y, theta = (pose[:, i, None, None, None] for i in range(3))
+    cos, sin = torch.cos(theta), torch.sin(theta)
+    return torch.stack((x + forward * cos + lateral * sin, y + forward * sin - lateral * cos), dim=-1)
+
+
+def grid_cells(xy: Tensor, geometry: Geometry) -> tuple[Tensor, Tensor, Tensor]:
+    """``(row, col, inside)`` of the cells holding points ``xy [..., 2]`` (:func:`cell_rows_cols`)."""
+    return cell_rows_cols(torch.floor(xy / geometry.resolution).long(), geometry)
+
+
+def cell_rows_cols(cell: Tensor, geometry: Geometry) -> tuple[Tensor, Tensor, Tensor]:
+    """``(row, col, inside)`` of integer cells ``cell [..., 2]`` (x, y); ``row`` and ``col`` are clamped into the
+    grid where ``inside`` is False."""
+    col, row = cell[..., 0], cell[..., 1]
+    ny, nx = geometry.shape
+    inside = (row >= 0) & (row < ny) & (col >= 0) & (col < nx)
+    return row.clamp(0, ny - 1), col.clamp(0, nx - 1), inside
+
+
+def _per_world(grid: Tensor, row: Tensor, col: Tensor) -> Tensor:
+    """``grid [B, ny, nx]`` read at world ``b``'s ``row[b], col[b]`` (``[B, ...]``); an expanded grid is not copied."""
+    world = torch.arange(row.shape[0], device=row.device).reshape(-1, *([1] * (row.dim() - 1)))
+    return grid[world, row, col]
+
+
+def blocked_cells(geometry: Geometry, row: Tensor, col: Tensor, inside: Tensor) -> Tensor:
+    """Whether each cell (``[B, ...]`` of world ``b``) is occupied in its world's map or outside the grid."""
+    occupancy = geometry.occupancy.expand(row.shape[0], *geometry.shape)
+    return ~inside | _per_world(occupancy, row, col)
+
+
+def map_images(geometry: Geometry, pose: Tensor, squares: Tensor, im_size: int,
+               visits: Tensor | None = None) -> Tensor:
+    """``[B, C, H, W]`` the occupancy image of ``squares[0]`` and, with ``visits [B, ny, nx]``, the visit-frequency
+    images of ``squares[1:]`` around ``pose [B, 3]``, in ttenv's values (module docstring)."""
+    xy = square_points(pose, squares, im_size, geometry.resolution)
+    row, col, inside = grid_cells(xy, geometry)
+    blocked = blocked_cells(geometry, row, col, inside)
+    occupancy = blocked[:, :1].to(pose.dtype) * 2.0 - 1.0
+    if visits is None:
+        return occupancy
+    in_bound = ((xy >= geometry.margin) & (xy <= geometry.size - geometry.margin)).all(-1)[:, 1:]
+    frequency = torch.where(in_bound, _per_world(visits, row[:, 1:], col[:, 1:]), 0.0)
+    return torch.cat((occupancy, torch.where(blocked[:, 1:], OBSTACLE_VISIT, frequency) - 1.0), dim=1)
+
+
+def visit_decay(belief_velocity: Tensor | None, dt: float, sensor_range: float) -> Tensor | float:
+    """``[B]`` ttenv v5's decay of the visit frequencies, ``0.7 ** (dt * b / sensor_range)`` with ``b`` the mean
+    belief speed over targets (``belief_velocity [B, N, 2]``); 1 without a belief velocity."""
+    if belief_velocity is None:
+        return 1.0
+    speed = torch.linalg.vector_norm(belief_velocity, dim=-1).mean(-1)
+    return torch.exp(dt * speed / sensor_range * math.log(VISIT_DECAY))
+
+
+def bresenham(start: Tensor, end: Tensor, length: int) -> tuple[Tensor, Tensor]:
+    """``(cells [..., length, 2], on_line [..., length])``: the Bresenham line of integer cells from ``start
+    [..., 2]`` to ``end [..., 2]`` as ttenv's ``bresenham2D`` draws it, padded to ``length`` cells.
+
+    Step ``k`` along the longer axis (the x axis on a tie) moves ``ceil((k * minor - floor(major / 2)) / major)``
+    cells along the other, ``major`` and ``minor`` the lengths of the longer and the shorter axis.
+    """
+    delta = end - start
+    direction = torch.where(delta >= 0, 1, -1)
+    span = delta.abs()
+    steep = span[..., 1] > span[..., 0]
+    major = torch.where(steep, span[..., 1], span[..., 0]).unsqueeze(-1)
+    minor = torch.where(steep, span[..., 0], span[..., 1]).unsqueeze(-1)
+    along = torch.arange(length, device=start.device)
+    across = -torch.div(major // 2 - along * minor, major.clamp_min(1), rounding_mode="floor")
+    along = along.expand_as(across)
+    steep = steep.unsqueeze(-1)
+    steps = torch.stack((torch.where(steep, across, along), torch.where(steep, along, across)), dim=-1)
+    return start.unsqueeze(-2) + steps * direction.unsqueeze(-2), along <= major
+
+
+def mark_visits(visits: Tensor, geometry: Geometry, pose: Tensor, worlds: Tensor, decay: Tensor | float,
+                ray_angles: Tensor, ray_cells: int) -> None:
+    """Decay the visit frequencies ``visits [B, ny * nx + 1]`` of the ``worlds [B]`` (bool) by ``decay`` and set to
+    1 the cells their sensor's rays (``ray_angles [R]`` from the heading, to the sensor's range) cross before
+    their first occupied or outside cell, in place. The last entry of each row takes the rays' other cells."""
+    resolution = geometry.resolution
+    start = torch.floor(pose[:, :2] / resolution).long()
+    angle = pose[:, 2:3] + ray_angles
+    reach = geometry.sensor_range * torch.stack((torch.cos(angle), torch.sin(angle)), dim=-1)
+    end = torch.floor((pose[:, None, :2] + reach) / resolution).long()
+    cells, on_line = bresenham(start.unsqueeze(1).expand_as(end), end, ray_cells)
+    row, col, inside = cell_rows_cols(cells, geometry)
+    clear = blocked_cells(geometry, row, col, inside).cumsum(-1) == 0
+    seen = on_line & clear & worlds[:, None, None]
+    flat = torch.where(seen, row * geometry.shape[1] + col, visits.shape[1] - 1)
+    visits.mul_(torch.where(worlds, torch.as_tensor(decay, dtype=visits.dtype, device=visits.device), 1.0)[:, None])
+    visits.scatter_(1, flat.flatten(1), 1.0)
