@@ -1,28 +1,32 @@
 """Read aia run logs back: whole, truncated (a killed run) or with corrupt chunks.
 
-One sequential pass over the records (``mcap``'s ``StreamReader``) serves every case: a complete file
-ends with its footer; a file cut short (no footer) yields every complete chunk before the cut; a chunk
-whose CRC-32 or compression is broken is skipped, and described in :attr:`RunLog.damage` (which chunk, when its
-messages were logged); a data section whose CRC-32 (written by :class:`~aia.logging.MCAPLogger`) does not match
-is described there too. A file that is not MCAP raises :class:`RunLogError` with a one-line reason.
+One sequential pass over the records (with the checks of ``mcap``'s ``StreamReader``) serves every case: a
+complete file ends with its footer; a file cut short (no footer) yields every complete chunk before the cut; a
+chunk whose CRC-32 or compression is broken is skipped, and described in :attr:`RunLog.damage` (which chunk, when
+its messages were logged); a data section whose CRC-32 (written by :class:`~aia.logging.MCAPLogger`) does not
+match is described there too. A file that is not MCAP raises :class:`RunLogError` with a one-line reason.
 """
 
 from __future__ import annotations
 
 import glob
 import json
+import struct
 import time
+import zlib
 from collections import Counter
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
-from mcap.exceptions import InvalidMagic
-from mcap.reader import breakup_chunk
-from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
-from mcap.stream_reader import CRCValidationError, StreamReader
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile, InvalidMagic
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Metadata, Schema
+from mcap.stream_reader import CRCValidationError, get_chunk_data_stream
 
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA
@@ -37,6 +41,10 @@ from aia.logging.scenes import (
     world_episode,
 )
 from aia.logging.segments import RESUMED_AFTER_KEY, is_later_segment, later_segments
+
+# libyaml's parser where PyYAML has it: the same safe subset of YAML, and a run's config (2.6 kB) parses in 1.4 ms
+# instead of 13 ms (best of 5), about 1 s less of `aia-log stats` over 80 runs
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 class RunLogError(ValueError):
@@ -120,7 +128,7 @@ class RunLog:
         """The run's resolved config (attachment ``config.yaml``, parsed once), or ``{}`` when not logged."""
         if self._config is None:
             data = self.attachments.get("config.yaml")
-            self._config = yaml.safe_load(data) or {} if data else {}
+            self._config = yaml.load(data, Loader=_YAML_LOADER) or {} if data else {}
         return self._config
 
     def config_value(self, key: str) -> Any:
@@ -187,48 +195,25 @@ def _read_file(path: Path) -> RunLog:
     if not path.is_file():
         raise RunLogError(f"{path}: no such file")
     try:
-        stream = open(path, "rb")  # noqa: SIM115  (closed below)
+        data = path.read_bytes()
     except OSError as err:
         raise RunLogError(f"{path}: cannot be read ({err.strerror})") from None
-    with stream:
-        return _read_records(path, stream)
+    return _read_records(path, data)
 
 
-def _read_records(path: Path, stream) -> RunLog:
-    schema_names: dict[int, str] = {}
-    channels: dict[int, tuple[str, int]] = {}
+def _read_records(path: Path, data: bytes) -> RunLog:
+    """The run in ``data`` (a whole file), read in one pass over its records as ``mcap``'s ``StreamReader``
+    with CRC checks reads them, but with the hot records parsed here: a message's fixed header is one
+    ``struct`` unpack and the message indexes are skipped by their length. Schemas, channels, chunks, metadata
+    and attachments (a few per file) are parsed by ``mcap``'s record classes, chunks decompressed and
+    CRC-checked by ``mcap``. ``mcap``'s reader spent 14 us a message (3,700 messages in a 200-episode run
+    with its recorded scenes: 80 runs in about 4 s); this walk spends about 2."""
     run = RunLog(path, messages=[], complete=False)
-    records = StreamReader(stream, emit_chunks=True, validate_crcs=True).records  # chunks: checked below
-    chunks = 0
-
-    def take(record) -> None:
-        if isinstance(record, Schema):
-            schema_names[record.id] = record.name
-        elif isinstance(record, Channel):
-            channels[record.id] = (record.topic, record.schema_id)
-        elif isinstance(record, Message) and record.channel_id in channels:
-            topic, schema_id = channels[record.channel_id]
-            run.messages.append(LoggedMessage(topic, schema_names.get(schema_id, ""), record.log_time, record.data))
-
+    walk = _RecordWalk(run)
     try:
-        for record in records:
-            if isinstance(record, Chunk):
-                chunks += 1
-                try:
-                    inner = breakup_chunk(record, validate_crc=True)
-                except Exception as err:  # noqa: BLE001  (a bad CRC or a broken compression: skip the chunk)
-                    run.damage.append(_damaged_chunk(chunks, record, err))
-                    continue
-                for item in inner:
-                    take(item)
-            elif isinstance(record, Metadata):
-                run.metadata[record.name] = dict(record.metadata)
-            elif isinstance(record, Attachment):
-                run.attachments[record.name] = bytes(record.data)
-            elif isinstance(record, Footer):
-                run.complete = True
-            else:
-                take(record)
+        if not data.startswith(_MAGIC):
+            raise EndOfFile() if len(data) < len(_MAGIC) else InvalidMagic(tuple(data[:len(_MAGIC)]))
+        walk.top_level(data, len(_MAGIC))
     except CRCValidationError:  # the data section's, checked at its end (it covers the chunks too)
         if not run.damage:
             run.damage.append("the data section fails its CRC-32 check: a record outside the chunks (a schema, "
@@ -239,12 +224,108 @@ def _read_records(path: Path, stream) -> RunLog:
             raise RunLogError(f"{path}: not an MCAP file (bad magic bytes)") from None
         run.problem = "bad magic bytes at the end"
     except Exception as err:  # noqa: BLE001  (a cut or damaged record surfaces as struct, EOF, MCAP... errors)
-        if not schema_names and not channels and not run.metadata and not _starts_with_magic(stream):
+        if not walk.channels and not walk.schema_names and not run.metadata and not data.startswith(_MAGIC):
             raise RunLogError(f"{path}: not a readable MCAP file ({type(err).__name__})") from None
         # a run that has only just started has its magic bytes (and header) but nothing else yet
         run.problem = f"file ends early or is damaged ({type(err).__name__})"
     run.messages.sort(key=lambda m: m.log_time)
     return run
+
+
+_RECORD_HEAD = struct.Struct("<BQ")        # opcode, body length
+_MESSAGE_HEAD = struct.Struct("<HIQQ")     # channel id, sequence, log time, publish time
+_DATA_END = struct.Struct("<I")            # the data section's CRC-32
+
+
+class _RecordWalk:
+    """The records of one MCAP file into a :class:`RunLog`: what ``_read_records`` walks with."""
+
+    def __init__(self, run: RunLog) -> None:
+        self.run = run
+        self.schema_names: dict[int, str] = {}
+        self.channels: dict[int, tuple[str, str]] = {}  # channel id -> (topic, schema name)
+        self.chunks = 0
+
+    def top_level(self, data: bytes, position: int) -> None:
+        """The records from ``position`` to the footer and the magic bytes after it (EndOfFile when cut short,
+        CRCValidationError for a data section that fails its CRC, InvalidMagic for bad closing magic)."""
+        run = self.run
+        while True:
+            opcode, body, end = _record(data, position)
+            if opcode == Opcode.MESSAGE:
+                self._message(data, body, end, run.messages)
+            elif opcode == Opcode.CHUNK:
+                self._chunk(Chunk.read(_stream(data, body, end)))
+            elif opcode == Opcode.METADATA:
+                record = Metadata.read(_stream(data, body, end))
+                run.metadata[record.name] = dict(record.metadata)
+            elif opcode == Opcode.ATTACHMENT:
+                record = Attachment.read(_stream(data, body, end))
+                run.attachments[record.name] = bytes(record.data)
+            elif opcode == Opcode.DATA_END:
+                (crc,) = _DATA_END.unpack_from(data, body)
+                actual = zlib.crc32(memoryview(data)[:position]) if crc != 0 else 0
+                if actual != crc:
+                    raise CRCValidationError(expected=crc, actual=actual, record=DataEnd(crc))
+            elif opcode == Opcode.FOOTER:
+                run.complete = True
+                if data[end:end + len(_MAGIC)] != _MAGIC:
+                    raise InvalidMagic(tuple(data[end:end + len(_MAGIC)]))
+                return
+            else:
+                self._definition(opcode, data, body, end)
+            position = end
+
+    def _chunk(self, chunk: Chunk) -> None:
+        """A chunk's messages, schemas and channels; a chunk that fails its CRC or decompression is skipped and
+        described in the run's damage."""
+        self.chunks += 1
+        messages: list[LoggedMessage] = []
+        try:
+            stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+            inner = stream.read(size)
+            position = 0
+            while position < size:
+                opcode, body, end = _record(inner, position)
+                if opcode == Opcode.MESSAGE:
+                    self._message(inner, body, end, messages)
+                else:
+                    self._definition(opcode, inner, body, end)
+                position = end
+        except Exception as err:  # noqa: BLE001  (a bad CRC or a broken compression: skip the chunk)
+            self.run.damage.append(_damaged_chunk(self.chunks, chunk, err))
+            return
+        self.run.messages.extend(messages)
+
+    def _message(self, data: bytes, body: int, end: int, into: list[LoggedMessage]) -> None:
+        channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(data, body)
+        channel = self.channels.get(channel_id)
+        if channel is not None:
+            into.append(LoggedMessage(channel[0], channel[1], log_time, data[body + _MESSAGE_HEAD.size:end]))
+
+    def _definition(self, opcode: int, data: bytes, body: int, end: int) -> None:
+        """A schema or a channel (other records, indexes and statistics, carry nothing a run log keeps)."""
+        if opcode == Opcode.SCHEMA:
+            schema = Schema.read(_stream(data, body, end))
+            self.schema_names[schema.id] = schema.name
+        elif opcode == Opcode.CHANNEL:
+            channel = Channel.read(_stream(data, body, end))
+            self.channels[channel.id] = (channel.topic, self.schema_names.get(channel.schema_id, ""))
+
+
+def _record(data: bytes, position: int) -> tuple[int, int, int]:
+    """``(opcode, body start, body end)`` of the record at ``position`` (EndOfFile where the data ends first)."""
+    if position + _RECORD_HEAD.size > len(data):
+        raise EndOfFile()
+    opcode, length = _RECORD_HEAD.unpack_from(data, position)
+    body = position + _RECORD_HEAD.size
+    if body + length > len(data):
+        raise EndOfFile()
+    return opcode, body, body + length
+
+
+def _stream(data: bytes, body: int, end: int) -> ReadDataStream:
+    return ReadDataStream(BytesIO(data[body:end]))
 
 
 _MAGIC = b"\x89MCAP0\r\n"
@@ -257,11 +338,6 @@ def _damaged_chunk(number: int, chunk: Chunk, error: Exception) -> str:
     what = ("fails its CRC-32 check" if isinstance(error, CRCValidationError)
             else f"cannot be decompressed ({type(error).__name__})")
     return f"chunk {number} (logged {logged}) {what}: its messages are skipped"
-
-
-def _starts_with_magic(stream) -> bool:
-    stream.seek(0)
-    return stream.read(len(_MAGIC)) == _MAGIC
 
 
 def find_runs(patterns: list[str]) -> list[Path]:

@@ -14,7 +14,7 @@ from hydra import compose, initialize_config_module
 from aia.evaluation import search_objective
 from aia.logging import read_run
 
-TRIALS = 2  # one batch of the launcher's n_jobs (2): the population variant trains both together
+TRIALS = 2  # one batch of the launcher's n_jobs (2): the population launcher trains both together
 
 
 def test_paper_search_composes_a_maximising_optuna_sweeper():
@@ -27,20 +27,22 @@ def test_paper_search_composes_a_maximising_optuna_sweeper():
     assert sweeper.sampler._target_ == "optuna.samplers.TPESampler" and sweeper.sampler.seed == 0
 
 
-@pytest.mark.parametrize("launcher", ["local", "population"])  # population: a batch's trials train together
-def test_a_study_returns_the_lr_of_its_best_run(tmp_path, launcher):
+def test_a_study_returns_the_lr_of_its_best_run(tmp_path):
+    """The population launcher trains a batch's trials together and returns each one's objective. (The task
+    function's own return, what Hydra's local and the SLURM launchers hand the sweeper, is checked through
+    SLURM in tests/cluster/test_slurm.py.)"""
     storage = f"sqlite:///{tmp_path / 'study.db'}"  # the sqlite storage needs the pins of the `search` extra
     result = subprocess.run(
         [sys.executable, "-m", "aia.apps.train", "-m", "hydra/sweeper=paper_search",
          f"hydra.sweeper.n_trials={TRIALS}", f"hydra.sweeper.storage={storage}", "hydra.sweeper.study_name=tiny",
-         f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+         "hydra/launcher=population", f"hydra.sweep.dir={tmp_path / 'sweep'}",
          "frames=100", "warmup_frames=50", "env.max_steps=50", "eval.episodes=2", "eval.per_rollout=1",
          "logger.record_every_evaluations=0", "threads=1"],
         capture_output=True, text=True, timeout=300,
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    if launcher == "population":  # the sweeper hands the launcher its trials n_jobs (2) at a time
-        assert result.stdout.count("population launcher: 2 jobs in") == TRIALS // 2, result.stdout
+    # the sweeper hands the launcher its trials n_jobs (2) at a time
+    assert result.stdout.count("population launcher: 2 jobs in") == TRIALS // 2, result.stdout
     objectives = {}
     for trial in range(TRIALS):
         run_dir = tmp_path / "sweep" / str(trial)
