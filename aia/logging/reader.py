@@ -206,8 +206,8 @@ def _read_records(path: Path, data: bytes) -> RunLog:
     with CRC checks reads them, but with the hot records parsed here: a message's fixed header is one
     ``struct`` unpack and the message indexes are skipped by their length. Schemas, channels, chunks, metadata
     and attachments (a few per file) are parsed by ``mcap``'s record classes, chunks decompressed and
-    CRC-checked by ``mcap``. ``mcap``'s reader spent 14 us a message (3,700 messages in a 200-episode run
-    with its recorded scenes: 80 runs in about 4 s); this walk spends about 2."""
+    CRC-checked by ``mcap``. The same runs as ``StreamReader``'s records give, in 7 us a message instead of
+15 (580 logs of tests and a 20-seed protocol, 137k messages: 0.95 s against 2.05 s)."""
     run = RunLog(path, messages=[], complete=False)
     walk = _RecordWalk(run)
     try:
