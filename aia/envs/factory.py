@@ -69,7 +69,7 @@ def make_transforms(config: TrackingConfig, compile: bool = False, geometry: Geo
         if geometry is None:
             raise ValueError(f"features.local_map={config.features.local_map!r} needs the env's geometry")
         transforms.append(LocalMap(geometry, config.features.local_map, config.features.im_size, config.dt,
-                                   config.sensor.obstacle_ray_spacing))
+                                   config.sensor.obstacle_ray_spacing, compile=compile))
     return Compose(*transforms, InfoReward(config.reward, compile=compile))
 
 

@@ -69,7 +69,7 @@ def test_visit_images_by_hand() -> None:
     y 2..-1, in front x 6..9, behind x -2..1. Outside the map or occupied +1; closer than the margin (1 m) to the
     bounds -1; else the visit frequency - 1 (here ``v(x, y) = (8 y + x) / 100 - 1``)."""
     geometry = _geometry(_small_map())
-    visits = (torch.arange(64, dtype=F64) / 100).reshape(1, 8, 8)
+    visits = (torch.arange(64, dtype=F64) / 100).reshape(1, 64)  # row = y
 
     def v(x: int, y: int) -> float:
         return (8 * y + x) / 100 - 1
@@ -106,9 +106,10 @@ def _ttenv_line(sx: int, sy: int, ex: int, ey: int) -> list[tuple[int, int]]:
 def test_bresenham_closed_form_equals_ttenv_lines() -> None:
     ends = torch.tensor([(x, y) for x in range(-9, 10) for y in range(-9, 10)]) + torch.tensor([3, -2])
     start = torch.tensor([3, -2]).expand_as(ends)
-    cells, on_line = bresenham(start, ends, 11)
+    x, y, on_line = bresenham(start, ends, 11)
     for i, (ex, ey) in enumerate(ends.tolist()):
-        assert [tuple(c) for c in cells[i][on_line[i]].tolist()] == _ttenv_line(3, -2, ex, ey)
+        line = zip(x[i][on_line[i]].tolist(), y[i][on_line[i]].tolist(), strict=True)
+        assert list(line) == _ttenv_line(3, -2, ex, ey)
 
 
 def test_each_world_image_equals_its_own_map_alone() -> None:
@@ -126,14 +127,14 @@ def test_each_world_image_equals_its_own_map_alone() -> None:
     visits = torch.zeros(3, 65, dtype=F64)
     for pose, decay in zip(poses, decays, strict=True):
         mark_visits(visits, world_geometry, pose, every, decay, transform.ray_angles, transform.ray_cells)
-    images = map_images(world_geometry, poses[-1], SQUARES, 4, visits[:, :-1].reshape(3, 8, 8))
+    images = map_images(world_geometry, poses[-1], SQUARES, 4, visits)
     for b in range(3):
         alone = _geometry(GridMap(f"world {b}", 1.0, maps[b]))
         own = torch.zeros(1, 65, dtype=F64)
         for pose, decay in zip(poses[:, b : b + 1], decays[:, b : b + 1], strict=True):
             mark_visits(own, alone, pose, every[:1], decay, transform.ray_angles, transform.ray_cells)
         torch.testing.assert_close(visits[b], own[0], rtol=0, atol=0)
-        expected = map_images(alone, poses[-1, b : b + 1], SQUARES, 4, own[:, :-1].reshape(1, 8, 8))
+        expected = map_images(alone, poses[-1, b : b + 1], SQUARES, 4, own)
         torch.testing.assert_close(images[b], expected[0], rtol=0, atol=0)
 
 
