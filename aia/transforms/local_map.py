@@ -3,8 +3,8 @@
 The image is ``local_map`` ``[B, C, H, W]``: ``H`` counts cells forward from the robot, ``W`` cells across from
 its left to its right (ttenv's ``local_map[c, r]``), ``im_size`` each, one map cell a pixel. Channel 0 is the
 occupancy of the square in front of the robot, ``-1`` free and ``+1`` occupied or outside the map (ttenv's
-``(occupied - 0.5) * 2``). With ``visits``, channels 1-4 are the visit frequencies of the squares of the same
-size left of, right of, in front of and behind it (ttenv's ``local_visit_map_surroundings``): ``+1`` on an
+``(occupied - 0.5) * 2``). With ``occupancy_visits``, channels 1-4 are the visit frequencies of the squares of the
+same size left of, right of, in front of and behind it (ttenv's ``local_visit_map_surroundings``): ``+1`` on an
 occupied or outside cell, the world's visit frequency ``- 1`` on a cell at least ``margin`` from the bounds
 (ttenv's ``in_bound``), ``-1`` elsewhere.
 
