@@ -49,8 +49,8 @@ class Geometry(ABC):
     """What both geometries share: the map's frame, the sensor, the walls, and the queries built on a map's
     occupancy (line of sight, the closest obstacle in view).
 
-    ``occupancy`` is ``[ny, nx]`` (one map) or ``[B, ny, nx]`` (one per world); ``occupancy.expand(B, ny, nx)``
-    reads each world's grid either way, without a copy (what a local-map observation gathers from).
+    ``occupancy`` is ``[ny, nx]`` (one map) or ``[B, ny, nx]`` (one per world); :meth:`_occupied` reads cells by
+    flat index into each world's own grid either way (what the local-map observation gathers through).
     """
 
     def __init__(self, size: tuple[float, float], shape: tuple[int, int], resolution: float, margin: float,
