@@ -49,7 +49,7 @@ class Geometry(ABC):
     """What both geometries share: the map's frame, the sensor, the walls, and the queries built on a map's
     occupancy (line of sight, the closest obstacle in view).
 
-    ``occupancy`` is ``[ny, nx]`` (one map) or ``[B, ny, nx]`` (one per world); :meth:`_occupied` reads cells by
+    ``occupancy`` is ``[ny, nx]`` (one map) or ``[B, ny, nx]`` (one per world); :meth:`occupied` reads cells by
     flat index into each world's own grid either way (what the local-map observation gathers through).
     """
 
@@ -89,7 +89,7 @@ class Geometry(ABC):
         """Positions ``[..., 2]`` where an episode may start, uniform over that space, from ``[..., 3]`` uniforms."""
 
     @abstractmethod
-    def _occupied(self, index: Tensor) -> Tensor:
+    def occupied(self, index: Tensor) -> Tensor:
         """Whether the map cells at flat indices ``index`` (into each world's own grid) are occupied."""
 
     @abstractmethod
@@ -133,7 +133,7 @@ class Geometry(ABC):
         samples = math.ceil(2 * self.sensor_range / self.resolution) + 1
         fraction = torch.linspace(0.0, 1.0, samples, dtype=self.dtype, device=self.device)
         points = origin.unsqueeze(-2) + (target - origin).unsqueeze(-2) * fraction.unsqueeze(-1)
-        return ~self._occupied(self._cell_index(points, self.resolution, self.shape)).any(-1)
+        return ~self.occupied(self._cell_index(points, self.resolution, self.shape)).any(-1)
 
     # ------------------------------------------------------------ obstacles
     def closest_obstacle(self, pose: Tensor) -> Tensor:
@@ -207,7 +207,7 @@ class MapGeometry(Geometry):
             else None
         )
 
-    def _occupied(self, index: Tensor) -> Tensor:
+    def occupied(self, index: Tensor) -> Tensor:
         return self.occupancy.flatten()[index]
 
     def _obstacle_hits(self, pose: Tensor, bins: Tensor) -> Tensor:
@@ -322,11 +322,11 @@ class WorldMapGeometry(Geometry):
         """Flat indices into each world's grid ``[B, ...]`` -> indices into the stack of grids."""
         return index + self._world_base.view(-1, *([1] * (index.ndim - 1)))
 
-    def _occupied(self, index: Tensor) -> Tensor:
+    def occupied(self, index: Tensor) -> Tensor:
         return self.occupancy.flatten()[self._per_world(index)]
 
     def _occupied_cells(self, row: Tensor, col: Tensor) -> Tensor:
-        return self._occupied(row * self.shape[1] + col)
+        return self.occupied(row * self.shape[1] + col)
 
     def _obstacle_hits(self, pose: Tensor, bins: Tensor) -> Tensor:
         row, col = self._cell_rows_cols(pose[..., :2], self.resolution, self.shape)

@@ -147,7 +147,7 @@ def map_images(geometry: Geometry, pose: Tensor, squares: Tensor, im_size: int,
     x, y = square_points(pose, squares, im_size, geometry.resolution)
     index, inside = flat_cells(torch.floor(x / geometry.resolution).long(), torch.floor(y / geometry.resolution).long(),
                                geometry)
-    blocked = ~inside | geometry._occupied(index)
+    blocked = ~inside | geometry.occupied(index)
     if visits is None:
         return torch.where(blocked, 1.0, -1.0).to(pose.dtype)
     width, height = geometry.size - geometry.margin
@@ -199,7 +199,7 @@ def mark_visits(visits: Tensor, geometry: Geometry, pose: Tensor, worlds: Tensor
     end = torch.floor((pose[:, None, :2] + reach) / resolution).long()
     x, y, on_line = bresenham(start.unsqueeze(1).expand_as(end), end, ray_cells)
     index, inside = flat_cells(x, y, geometry)
-    clear = (~inside | geometry._occupied(index)).cumsum(-1) == 0
+    clear = (~inside | geometry.occupied(index)).cumsum(-1) == 0
     seen = on_line & clear & worlds[:, None, None]
     visits.mul_(torch.where(worlds, torch.as_tensor(decay, dtype=visits.dtype, device=visits.device), 1.0)[:, None])
     visits.scatter_(1, torch.where(seen, index, visits.shape[1] - 1).flatten(1), 1.0)
