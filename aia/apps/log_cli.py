@@ -266,7 +266,8 @@ def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: fl
         step = steps[t]
         return render_frame(info.grid_map, step.robot_pose, step.targets, step.belief_mean, step.belief_cov,
                             info.sensor_range, info.fov_deg, size=size, observed=step.observed,
-                            robot_path=robot_path[:t], target_paths=target_paths[:t], view=view)
+                            robot_path=robot_path[:t], target_paths=target_paths[:t], view=view,
+                            particles=step.particles)
 
     images = [Image.fromarray(draw(t)) for t in shown]
     out.parent.mkdir(parents=True, exist_ok=True)

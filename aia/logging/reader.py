@@ -31,12 +31,14 @@ from mcap.stream_reader import CRCValidationError, get_chunk_data_stream
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA
 from aia.logging.scenes import (
+    PARTICLES_TOPIC,
     SCENE_TOPIC,
     TF_TOPIC,
     WORLD_TOPIC,
     SceneFrame,
     WorldInfo,
     parse_frame,
+    parse_particle_cloud,
     parse_world,
     world_episode,
 )
@@ -161,12 +163,15 @@ class RunLog:
         info = worlds[pick]
         end = starts[pick + 1] if pick + 1 < len(starts) else len(self.messages)
         transforms: dict[int, bytes] = {}
+        clouds = {m.log_time: m.data for m in self.messages[starts[pick]:end] if m.topic == PARTICLES_TOPIC}
         frames = []
         for message in self.messages[starts[pick]:end]:
             if message.topic == TF_TOPIC:
                 transforms[message.log_time] = message.data
             elif message.topic == SCENE_TOPIC and message.log_time in transforms:
                 frame = parse_frame(transforms.pop(message.log_time), message.data)
+                if message.log_time in clouds:
+                    frame.particles = parse_particle_cloud(clouds[message.log_time])[0]
                 if frame.episode == info.episode:
                     frames.append(frame)
         return info, frames

@@ -8,9 +8,19 @@ from torchrl.envs.transforms import Transform
 from aia.envs.tracking import TargetTrackingEnv
 from aia.logging import schemas
 from aia.logging.mcap_logger import MCAPLogger
-from aia.logging.scenes import SCENE_TOPIC, TF_TOPIC, WORLD_TOPIC, FrameEncoder, WorldInfo, world_message
+from aia.logging.scenes import (
+    PARTICLES_TOPIC,
+    SCENE_TOPIC,
+    TF_TOPIC,
+    WORLD_TOPIC,
+    FrameEncoder,
+    WorldInfo,
+    particle_cloud_message,
+    world_message,
+)
 
 _KEYS = ("robot_pose", "target_state", "belief_mean", "belief_cov", "observed")
+_PARTICLE_KEYS = ("belief_particles", "belief_weights")  # a particle filter's belief (aia.envs.filters.particle)
 
 
 class SceneRecorder(Transform):
@@ -18,8 +28,9 @@ class SceneRecorder(Transform):
 
     The recorder is idle until :meth:`record` arms it; the next reset then writes the map (``/world``) and
     the first scene, every step writes ``/tf`` and ``/scene`` (:mod:`aia.logging.scenes`), and the episode
-    of world ``world`` ending disarms it. It reads the env's raw keys (robot pose, true targets, belief) and
-    changes nothing in the tensordict, so it can sit anywhere in the env's transforms.
+    of world ``world`` ending disarms it, and with a particle filter every step writes the particles too
+    (``/belief_particles``). It reads the env's raw keys (robot pose, true targets, belief) and changes nothing in
+    the tensordict, so it can sit anywhere in the env's transforms.
 
     Args:
         logger: where the scenes go.
@@ -95,3 +106,7 @@ class SceneRecorder(Transform):
         run = self.logger.experiment
         run.write(run.channel(TF_TOPIC, schemas.FRAME_TRANSFORM), tf, stamp)
         run.write(run.channel(SCENE_TOPIC, schemas.SCENE_UPDATE), scene, stamp)
+        if _PARTICLE_KEYS[0] in tensordict.keys():  # noqa: SIM118 (a TensorDict has no `in`)
+            particles, weights = (tensordict.get(key)[self.world].cpu().numpy() for key in _PARTICLE_KEYS)
+            run.write(run.channel(PARTICLES_TOPIC, schemas.POINT_CLOUD), particle_cloud_message(
+                stamp, particles, weights), stamp)

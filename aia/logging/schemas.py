@@ -19,6 +19,7 @@ SCENE_UPDATE = "foxglove.SceneUpdate"
 FRAME_TRANSFORM = "foxglove.FrameTransform"
 LOG = "foxglove.Log"
 COMPRESSED_IMAGE = "foxglove.CompressedImage"
+POINT_CLOUD = "foxglove.PointCloud"
 SCALAR = "aia.Scalar"
 HISTOGRAM = "aia.Histogram"
 
@@ -78,6 +79,12 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                  message=STRING, name=STRING, file=STRING, line=INTEGER),
     COMPRESSED_IMAGE: _object(COMPRESSED_IMAGE, timestamp=_TIME, frame_id=STRING,
                               data={"type": "string", "contentEncoding": "base64"}, format=STRING),
+    POINT_CLOUD: _object(POINT_CLOUD, timestamp=_TIME, frame_id=STRING, pose=_POSE, point_stride=INTEGER,
+                         fields=_array(_object("foxglove.PackedElementField", name=STRING, offset=INTEGER,
+                                               type=_enum("foxglove.NumericType", "UNKNOWN", "UINT8", "INT8",
+                                                          "UINT16", "INT16", "UINT32", "INT32", "FLOAT32",
+                                                          "FLOAT64"))),
+                         data={"type": "string", "contentEncoding": "base64"}),
     SCALAR: _object(SCALAR, frame=INTEGER, value=NUMBER),
     HISTOGRAM: _object(HISTOGRAM, frame=INTEGER, edges=_array(NUMBER), counts=_array(NUMBER)),
 }

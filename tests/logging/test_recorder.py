@@ -64,3 +64,32 @@ def test_the_recorded_world_must_exist(tmp_path):
     with pytest.raises(ValueError, match="world=3 is out of range for an env of 3 worlds"):
         env.reset()
     logger.close()
+
+
+def test_a_particle_filter_records_its_particles_every_step_and_render_draws_them(tmp_path):
+    """With a particle filter each recorded step also writes ``/belief_particles`` (a ``foxglove.PointCloud``):
+    the recorded world's particles and weights as float32, read back with the frame they belong to."""
+    from aia.envs.render import PARTICLE_COLOUR, render_frame
+    from aia.logging.scenes import PARTICLES_TOPIC, parse_particle_cloud
+
+    logger = MCAPLogger("exp", tmp_path)
+    env = make_env("ttenv_v2_particle", batch_size=2, seed=1,
+                   overrides=["max_steps=4", "belief.particles=16", "num_targets=2"])
+    env.append_transform(SceneRecorder(logger, world=1))
+    env.transform[-1].record(episode=0, frame=0)
+    rollout = env.rollout(4, break_when_any_done=False)
+    logger.close()
+
+    run = read_run(tmp_path / "run.mcap")
+    assert run.topic_counts()[PARTICLES_TOPIC] == ("foxglove.PointCloud", 5)  # the reset and 4 steps
+    world = rollout[1]
+    particles = torch.cat((world["belief_particles"][:1], world["next", "belief_particles"]))[..., :2]
+    weights = torch.cat((world["belief_weights"][:1], world["next", "belief_weights"]))
+    clouds = [parse_particle_cloud(m.data) for m in run.messages if m.topic == PARTICLES_TOPIC]
+    assert np.array_equal(np.stack([c[0] for c in clouds]), particles.double().numpy())
+    assert np.array_equal(np.stack([c[1] for c in clouds]), weights.double().numpy())
+    info, frames = run.episode("first")
+    assert np.array_equal(frames[2].particles, clouds[2][0])
+    image = render_frame(info.grid_map, frames[2].robot_pose, frames[2].targets, frames[2].belief_mean,
+                         frames[2].belief_cov, info.sensor_range, info.fov_deg, particles=frames[2].particles)
+    assert (image == np.array(PARTICLE_COLOUR, dtype=np.uint8)).all(-1).any()
