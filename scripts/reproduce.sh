@@ -16,7 +16,9 @@
 #   SEEDS        learner seeds [0,1,2,3,4];  ARVI_SEEDS  planner seeds [0,...,9]; both take ranges too:
 #                SEEDS=0-19 is 0,1,...,19, and SEEDS=0-4,10,12-13 mixes both
 #   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
-#   TRAIN_OVERRIDES  more aia-train overrides, space-separated, e.g. "device=cuda" or "compile.update=false" []
+#   TRAIN_OVERRIDES  more aia-train overrides, space-separated, e.g. "device=cuda" or "compile.update=false" [];
+#                "resume=auto" continues a protocol stopped by a signal (Ctrl-C, SIGTERM or SIGUSR1 to the launcher:
+#                each running population ends its episode and checkpoints) from its checkpoints, in the same folders
 #   JOBS         populations in parallel [2] (one aia-train -m over all settings, hydra/launcher=population:
 #                per setting, DQN with Double DQN and ADFQ-egreedy with ADFQ-TS each train all their seeds as one
 #                population, the largest populations first);  OUT  output folder [outputs/repro]
@@ -157,7 +159,7 @@ phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations ($LAUNCHER)
 aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEED_LIST" threads=1 \
   "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.sweep.dir=$OUT/sweeps/learners" \
   "$(run_dir learners)" \
-  'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,compile.update,compile.env,compile.policy]'
+  'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,resume,compile.update,compile.env,compile.policy]'
 ENVS=$(joined "${SETTING_LIST[@]}")
 for min_range in $ARVI_MIN_RANGES; do
   baseline "$min_range"

@@ -7,15 +7,20 @@ whose records fail their CRC-32 check (:func:`~aia.training.checkpoint_files.che
 checkpoint of a run that differs in a setting that shapes what is learned (:data:`RESUME_KEYS`, the fields of
 :class:`~aia.config.schemas.TrainConfig` declared ``resume``: the env, the algorithm, the network, the
 exploration, the seed, the worlds and the replay) is refused, naming every differing key with both values;
-budgets (``frames``), logging and compile switches may change.
+budgets (``frames``), logging and compile switches may change. A setting added to aia after the checkpoint was
+written matches when the run leaves it at its default, so that a run continues across versions of the code.
 """
 
 from __future__ import annotations
 
+import functools
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from hydra import compose, initialize_config_module
+from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
 from aia.config.errors import ConfigError
@@ -103,11 +108,39 @@ def load_resumable(path: Path, cfg: DictConfig, map_location: str) -> dict:
     keys = sorted((k for k in saved.keys() | now.keys() if _resume_key(k) is not None),
                   key=lambda k: (_resume_key(k), k))
     differences = [f"{key} ({saved.get(key)!r} in the checkpoint, {now.get(key)!r} now)"
-                   for key in keys if saved.get(key) != now.get(key)]
+                   for key in keys if saved.get(key) != now.get(key) and not _introduced_at_default(key, saved, now)]
     if differences:
         raise ConfigError("resume", str(path), "a checkpoint of the same run; it differs in "
                           + ", ".join(differences))
     return checkpoint
+
+
+def _introduced_at_default(key: str, saved: dict[str, object], now: dict[str, object]) -> bool:
+    """Whether ``key`` is a setting added after the checkpoint was written (absent from its config) that this run
+    leaves at its default, the behaviour the code had before the setting existed (a new setting's default keeps
+    the old behaviour: e.g. ``env.features.local_map=none``)."""
+    if key in saved or key not in now:
+        return False
+    default = _default_settings().get(key, _NO_DEFAULT)
+    return default is not _NO_DEFAULT and default == now[key]
+
+
+_NO_DEFAULT = object()
+
+
+@functools.cache
+def _default_settings() -> dict[str, object]:
+    """``{"dotted.key": default}`` of ``aia-train``'s config: conf/train.yaml as composed without overrides, the
+    env's keys from the env schema (:class:`~aia.envs.config.TrackingConfig`) rather than the default preset."""
+    from aia.envs.config import TrackingConfig
+
+    context = (nullcontext() if GlobalHydra.instance().is_initialized()
+               else initialize_config_module(config_module="aia.conf", version_base="1.3"))
+    with context:
+        train = compose(config_name="train")
+    defaults = {k: v for k, v in flat_settings(train).items() if not k.startswith("env.")}
+    env = flat_settings(OmegaConf.structured(TrackingConfig))
+    return defaults | {f"env.{key}": value for key, value in env.items()}
 
 
 def _resume_key(key: str) -> int | None:

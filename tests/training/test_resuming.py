@@ -17,7 +17,7 @@ from hydra import compose, initialize_config_module
 from aia.config.errors import ConfigError
 from aia.logging import find_runs, read_run
 from aia.training import train
-from aia.training.resuming import resume_point
+from aia.training.resuming import load_resumable, resume_point
 from aia.training.stopping import StopOnSignals
 
 SMALL = ("env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16", "hidden=[32,32]",
@@ -76,8 +76,17 @@ def test_resume_auto_without_a_checkpoint_starts_fresh(tmp_path):
 
 
 def test_a_checkpoint_of_another_run_is_refused_naming_each_difference(tmp_path):
+    """Each differing setting is named; a setting added after the checkpoint was written (``env.features.im_size``
+    and ``conv_layers`` taken out of its config) matches a run that leaves it at its default, not one that sets it."""
     train(_config(*SMALL, "frames=120", "logger=none"), tmp_path / "a")
     path = tmp_path / "a" / "checkpoints" / "last.pt"
+    checkpoint = torch.load(path, weights_only=False)
+    del checkpoint["config"]["env"]["features"]["im_size"], checkpoint["config"]["conv_layers"]
+    older = tmp_path / "older.pt"
+    torch.save(checkpoint, older)
+    assert load_resumable(older, _config(*SMALL, "frames=200"), "cpu")["state"]["frames"] == 120
+    with pytest.raises(ConfigError, match=r"differs in env.features.im_size \(None in the checkpoint, 8 now\)$"):
+        load_resumable(older, _config(*SMALL, "frames=200", "env.features.im_size=8"), "cpu")
     with pytest.raises(ConfigError, match=r"differs in env.map \('empty' in the checkpoint, 'empty_small' now\)"
                                           r".*hidden \(\[32, 32\] in the checkpoint, \[64\] now\)"):
         train(_config(*SMALL, "frames=200", "env=small2", "hidden=[64]", "logger=none", f"resume={path}"),
