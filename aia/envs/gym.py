@@ -2,7 +2,9 @@
 
 The env wraps :func:`aia.envs.factory.make_env` with ``batch_size=1`` and the feature and reward
 transforms, so an observation is the ``6N + 2`` feature vector of SPEC 6 (float32) and a reward is the
-shaped reward of SPEC 7. The paper's score increment ``-mean_i log det Sigma_i`` and the raw per-target
+shaped reward of SPEC 7. A setting with a map observation (``env.features.local_map``, the ttenv v4/v5
+presets) has a ``Dict`` observation space instead: ``{"observation": the features, "local_map": the
+[C, H, W] image in [-1, 1]}``. The paper's score increment ``-mean_i log det Sigma_i`` and the raw per-target
 quantities come in ``info``. ``import aia`` registers the id ``"aia/TargetTracking-v0"``::
 
     import aia, gymnasium
@@ -24,6 +26,7 @@ from tensordict import TensorDict, TensorDictBase
 from aia.envs.factory import make_env
 from aia.envs.render import render_frame
 
+_FEATURES_KEY, _MAP_KEY = "observation", "local_map"
 # (map, number of targets) of the four paper settings.
 _PAPER_SETTINGS = {
     ("empty", 1): "empty1",
@@ -105,10 +108,7 @@ class TargetTrackingGymEnv(gymnasium.Env):
         self.num_targets = self.config.num_targets
         self.num_actions = int(self.base_env.primitives.shape[0])
         self.action_space = spaces.Discrete(self.num_actions)
-        obs_spec = self.torch_env.observation_spec["observation"]
-        low = obs_spec.space.low.reshape(-1, obs_spec.shape[-1])[0].cpu().numpy().astype(np.float32)
-        high = obs_spec.space.high.reshape(-1, obs_spec.shape[-1])[0].cpu().numpy().astype(np.float32)
-        self.observation_space = spaces.Box(low=low, high=high, dtype=np.float32)
+        self.observation_space = _observation_space(self.torch_env.observation_spec)
         self._state: TensorDictBase | None = None
 
     # ------------------------------------------------------------------ API
@@ -146,7 +146,7 @@ class TargetTrackingGymEnv(gymnasium.Env):
             raise gymnasium.error.ResetNeeded("call reset() before render()")
         state = self._state
         return render_frame(
-            self.base_env.map,
+            self.base_env.world_map(0),
             state["robot_pose"][0],
             state["target_state"][0],
             state["belief_mean"][0],
@@ -174,8 +174,13 @@ class TargetTrackingGymEnv(gymnasium.Env):
             raise ValueError(f"action {index} is out of range: {allowed}")
         return index
 
-    def _observation(self) -> np.ndarray:
-        return self._state["observation"][0].detach().cpu().numpy().astype(np.float32)
+    def _observation(self) -> np.ndarray | dict[str, np.ndarray]:
+        def value(key: str) -> np.ndarray:
+            return self._state[key][0].detach().cpu().numpy().astype(np.float32)
+
+        if isinstance(self.observation_space, spaces.Dict):
+            return {key: value(key) for key in self.observation_space.spaces}
+        return value(_FEATURES_KEY)
 
     def _info(self) -> dict[str, Any]:
         state = self._state
@@ -186,3 +191,16 @@ class TargetTrackingGymEnv(gymnasium.Env):
             "collision": bool(state["collision"].reshape(-1)[0]),
             "score_increment": float(-logdet.mean()),
         }
+
+
+def _observation_space(observation_spec) -> spaces.Box | spaces.Dict:
+    """The features' ``Box`` (one world's bounds, float32), or with a map image a ``Dict`` of it and the image's
+    ``Box``."""
+    def box(key: str) -> spaces.Box:
+        spec = observation_spec[key]
+        low, high = (bound[0].cpu().numpy().astype(np.float32) for bound in (spec.space.low, spec.space.high))
+        return spaces.Box(low=low, high=high, dtype=np.float32)
+
+    if _MAP_KEY in observation_spec.keys():  # noqa: SIM118 (a Composite has no `in`)
+        return spaces.Dict({_FEATURES_KEY: box(_FEATURES_KEY), _MAP_KEY: box(_MAP_KEY)})
+    return box(_FEATURES_KEY)

@@ -181,3 +181,22 @@ def test_fresh_process_can_make_the_env_by_module_prefix():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "(20,)"
+
+
+def test_a_map_observation_gives_a_dict_space_and_random_maps_render_their_own_map():
+    """ttenv_v4 (features and the local map image) behind the Gymnasium API: a Dict observation space whose
+    observations it contains, gymnasium's checker passes; on random maps the frame draws the world's own map."""
+    env = TargetTrackingGymEnv("ttenv_v4", render_mode="rgb_array", render_size=64,
+                               overrides=["features.im_size=6", "map=random_obstacles", "target.collision_rule=reflect",
+                                          "max_steps=5"])
+    assert env.observation_space == gymnasium.spaces.Dict({
+        "observation": env.observation_space["observation"],
+        "local_map": gymnasium.spaces.Box(-1.0, 1.0, (1, 6, 6), np.float32)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the features' Box bounds are infinite for the rates and log det
+        check_env(env)
+    obs, _ = env.reset(seed=2)
+    assert env.observation_space.contains(obs) and set(np.unique(obs["local_map"])) <= {-1.0, 1.0}
+    world = env.base_env.world_map(0)
+    assert world.has_obstacles and world.name == "world 0"
+    assert env.render().shape == (64, 64, 3)
