@@ -1,10 +1,12 @@
 """``aia-eval``: score a policy on fresh episodes: one saved by ``aia-train`` or the ARVI planner.
 
-``policy=checkpoint`` rebuilds the env and the network from the config stored in the checkpoint and acts
-at ``epsilon``; ``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``planner.*``) in the setting
-``env``. Either way ``episodes`` episodes run as one batched rollout through the same evaluation path; the
-app prints the score mean and std (SPEC 9) and writes ``eval.json`` and ``run.mcap`` (the scores, the
-config, and world 0's episode as Foxglove scenes: ``aia-log render`` draws it as in the paper's Fig. 3).
+``policy=checkpoint`` rebuilds the network from the config stored in the checkpoint and acts at ``epsilon`` in
+the checkpoint's own setting, or in the one the command line sets (``env=<preset>``, ``env.<key>=...``) if its
+observation has the same layout (the same belief features and map image, on any map; another is refused);
+``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``planner.*``) in the setting ``env``. Either
+way ``episodes`` episodes run as one batched rollout through the same evaluation path; the app prints the
+score mean and std (SPEC 9) and writes ``eval.json`` and ``run.mcap`` (the scores, the config, and world 0's
+episode as Foxglove scenes: ``aia-log render`` draws it as in the paper's Fig. 3).
 
 ``aia-eval -m policy=arvi seed=0,...,9 hydra/launcher=population`` runs :func:`evaluate_jobs`: all seeds'
 episodes in one rollout, planned in one batch with a budget group per seed, so that under a node or pass
@@ -26,8 +28,9 @@ from torchrl.envs import StepCounter
 
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.apps.summary import write_json
+from aia.config.checks import require
 from aia.config.errors import ConfigError, one_line
-from aia.config.validation import check_checkpoint_file, validate_eval_config
+from aia.config.validation import check_checkpoint_file, overrides_group, validate_eval_config
 from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
@@ -36,6 +39,7 @@ from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
 from aia.runtime.memory import keep_freed_memory
 from aia.training import make_actor
+from aia.training.components import observation_layout
 from aia.training.members import check_population
 
 POLICIES = ("checkpoint", "arvi")
@@ -56,15 +60,21 @@ def load_checkpoint(path: str | Path) -> dict:
 
 
 def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: int, device: str,
-                        logger: MCAPLogger | None = None) -> dict:
-    """Scores of the checkpoint's policy on ``episodes`` fresh episodes (logged to ``logger`` if given)."""
+                        logger: MCAPLogger | None = None, setting: DictConfig | None = None) -> dict:
+    """Scores of the checkpoint's policy on ``episodes`` fresh episodes (logged to ``logger`` if given), in
+    ``setting`` (an env config: :func:`check_setting`) or, without one, in the checkpoint's own."""
     _check_episodes(episodes)
     if not 0.0 <= epsilon <= 1.0:
         raise ValueError(f"epsilon={epsilon} must lie in [0, 1]")
     checkpoint = load_checkpoint(path)
     cfg = OmegaConf.create(checkpoint["config"])
     cfg.device = device
+    trained = cfg.env
+    if setting is not None:
+        cfg.env = setting  # the logged config names the setting its episodes ran in
     env = make_env(to_tracking_config(cfg.env), batch_size=episodes, device=device, seed=seed)
+    if setting is not None:
+        _check_layout(path, observation_layout(env.observation_spec), trained)
     actor = make_actor(cfg, env)
     actor.load_state_dict(checkpoint["actor"])
     policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec.n, epsilon, epsilon, 1, seed=seed,
@@ -75,6 +85,31 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
     result = {"checkpoint": str(path), "algo": cfg.algo.name, "frames_trained": frames, "episodes": episodes,
               "epsilon": epsilon}
     return result | score_episodes(env, policy, [logger], frames)[0]
+
+
+def checkpoint_setting(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig | None:
+    """The setting ``policy=checkpoint`` evaluates in: ``cfg.env`` where the command line (``overrides``) sets
+    ``env`` or one of its keys, else ``None`` (the checkpoint's own)."""
+    return cfg.env if cfg.policy == "checkpoint" and overrides_group(overrides, "env") else None
+
+
+def check_setting(path: str | Path, setting: DictConfig) -> None:
+    """Refuse, with one line naming both layouts, to evaluate the checkpoint at ``path`` in ``setting`` (an env
+    config) if its observation's layout differs from the setting the checkpoint was trained in."""
+    trained = OmegaConf.create(load_checkpoint(path)["config"]).env
+    _check_layout(path, _layout(setting), trained)
+
+
+def _layout(setting: DictConfig) -> str:
+    """The observation layout of ``setting``'s env (:func:`~aia.training.components.observation_layout`)."""
+    return observation_layout(make_env(to_tracking_config(setting), batch_size=1).observation_spec)
+
+
+def _check_layout(path: str | Path, layout: str, trained: DictConfig) -> None:
+    """A :class:`ConfigError` on ``env`` unless ``layout`` is the layout of ``trained`` (the checkpoint's env)."""
+    expected = _layout(trained)
+    require(layout == expected, "env", layout, f"the observation layout of the setting {path} was trained in, "
+            f"{expected} (the same belief features and map image; the map itself may differ)")
 
 
 def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seed: int, device: str,
@@ -138,21 +173,35 @@ def _check_episodes(episodes: int) -> None:
 @hydra_app("aia-eval", config_name="eval", population="aia.apps.evaluate.evaluate_jobs")  # bad input: exit 2
 def main(cfg: DictConfig) -> float:
     """Entry point of ``aia-eval``; returns the score mean."""
-    validate_eval_config(cfg, HydraConfig.get().overrides.task)
-    return run_jobs([cfg], [Path(HydraConfig.get().runtime.output_dir)])[0]
+    overrides = HydraConfig.get().overrides.task
+    _validate(cfg, overrides)
+    return run_jobs([cfg], [Path(HydraConfig.get().runtime.output_dir)], [checkpoint_setting(cfg, overrides)])[0]
+
+
+def _validate(cfg: DictConfig, overrides: Sequence[str]) -> None:
+    """:func:`~aia.config.validation.validate_eval_config`, and a checkpoint's setting checked
+    (:func:`check_setting`) before any run log is written."""
+    validate_eval_config(cfg, overrides)
+    setting = checkpoint_setting(cfg, overrides)
+    if setting is not None:
+        check_setting(cfg.checkpoint, setting)
 
 
 def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float | Exception]:
     """The population launcher's task (``hydra/launcher=population``): the jobs' configs, which differ only
     in ``seed``, evaluated together by :func:`run_jobs`, job ``k`` writing to ``out_dirs[k]``; each job's score
     mean, or the error that stopped it (an invalid config fails its own job only: the others run without it)."""
-    return run_valid_jobs("aia-eval", cfgs, lambda k, cfg: validate_eval_config(cfg, _job_overrides(out_dirs[k])),
-                          lambda valid: run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid]))
+    return run_valid_jobs("aia-eval", cfgs, lambda k, cfg: _validate(cfg, _job_overrides(out_dirs[k])),
+                          lambda valid: run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid],
+                                                 [checkpoint_setting(cfgs[i], _job_overrides(out_dirs[i]))
+                                                  for i in valid]))
 
 
-def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float]:
+def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path],
+             settings: Sequence[DictConfig | None] | None = None) -> list[float]:
     """Evaluate validated configs that differ only in ``seed``, each writing its ``eval.json`` and ``run.mcap``
-    to its folder: ``policy=arvi`` in one rollout (:func:`evaluate_planner_seeds`), checkpoints one by one.
+    to its folder: ``policy=arvi`` in one rollout (:func:`evaluate_planner_seeds`), checkpoints one by one, job
+    ``k``'s in ``settings[k]`` (:func:`checkpoint_setting`; ``None``, or no ``settings``: its own).
     Each job's score mean."""
     check_population(cfgs)
     first = cfgs[0]
@@ -168,8 +217,10 @@ def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float
             results = evaluate_planner_seeds(first.env, first.planner, first.episodes, [cfg.seed for cfg in cfgs],
                                              first.device, loggers)
         else:
-            results = [evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device, logger)
-                       for cfg, logger in zip(cfgs, loggers, strict=True)]
+            settings = [None] * len(cfgs) if settings is None else settings
+            results = [evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device, logger,
+                                           setting) for cfg, logger, setting in zip(cfgs, loggers, settings,
+                                                                                    strict=True)]
     finally:
         for logger in loggers:
             logger.close()

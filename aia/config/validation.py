@@ -72,8 +72,9 @@ def validate_train_config(cfg: DictConfig) -> None:
 
 def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None:
     """Check the composed ``aia-eval`` config (conf/eval.yaml); ``overrides`` are the command line's
-    (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` the checkpoint carries its own setting,
-    so an ``env`` or ``planner`` override, which it would ignore, is refused."""
+    (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` the checkpoint carries its own setting
+    unless the command line sets ``env`` (:func:`overrides_group`), and a ``planner`` override, which it would
+    ignore, is refused."""
     check_settings(cfg, EvalConfig)
     if cfg.policy == "arvi":
         to_tracking_config(cfg.env)
@@ -82,14 +83,20 @@ def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None
         except ValueError as err:
             raise ConfigError("policy", cfg.policy, f"a valid planner config ({one_line(err)})") from None
         return
-    ignored = [o for o in overrides if o.lstrip("+~").split("=")[0].split(".")[0] in ("env", "planner")]
+    ignored = overrides_group(overrides, "planner")
     if ignored:
         key, _, value = ignored[0].lstrip("+~").partition("=")
-        raise ConfigError(key, value, "no env or planner override with policy=checkpoint: the checkpoint "
-                                      "carries its own setting (env and planner apply to policy=arvi)")
+        raise ConfigError(key, value, "no planner override with policy=checkpoint (planner applies to policy=arvi)")
+    if overrides_group(overrides, "env"):
+        to_tracking_config(cfg.env)
     require(not OmegaConf.is_missing(cfg, "checkpoint"), "checkpoint", "???",
             "the path of a checkpoint .pt written by aia-train (required with policy=checkpoint)")
     check_checkpoint_file("checkpoint", Path(str(cfg.checkpoint)))
+
+
+def overrides_group(overrides: Sequence[str], group: str) -> list[str]:
+    """The command-line overrides of ``group``: ``group=<option>`` and ``group.<key>=<value>`` (``+``/``~`` too)."""
+    return [o for o in overrides if o.lstrip("+~").split("=")[0].split(".")[0] == group]
 
 
 def check_checkpoint_file(key: str, path: Path) -> None:

@@ -23,14 +23,16 @@ from torch import Tensor
 
 from aia import rng
 from aia.modules.exploration import exploring
-from aia.modules.stacked import StackedQNetwork
+from aia.modules.stacked import StackedConvQNetwork, StackedQNetwork
 
 
 class PopulationQPolicy(TensorDictModuleBase):
-    """``action`` for ``P * W`` worlds from ``observation``, member by member, without gradients.
+    """``action`` for ``P * W`` worlds from ``observation`` (and ``local_map`` for a conv network), member by
+    member, without gradients.
 
     Args:
-        network: the members' stacked Q-network (ADFQ: it returns ``(mean, log_sd)``).
+        network: the members' stacked Q-network (ADFQ: it returns ``(mean, log_sd)``), an MLP on ``in_key`` or a
+            :class:`~aia.modules.StackedConvQNetwork` on its own ``in_keys``.
         num_actions: size of the discrete action space.
         worlds_per_member: ``W``.
         seeds: one seed per member (its exploration stream).
@@ -43,10 +45,10 @@ class PopulationQPolicy(TensorDictModuleBase):
     the action is greedy (on the means for ADFQ). :attr:`steps` counts the exploring calls.
     """
 
-    def __init__(self, network: StackedQNetwork, num_actions: int, worlds_per_member: int, seeds: Sequence[int],
-                 thompson: bool | Sequence[bool], eps_init: Sequence[float], eps_end: Sequence[float],
-                 annealing_frames: Sequence[int], warmup_frames: int, in_key: str = "observation",
-                 action_key: str = "action") -> None:
+    def __init__(self, network: StackedQNetwork | StackedConvQNetwork, num_actions: int, worlds_per_member: int,
+                 seeds: Sequence[int], thompson: bool | Sequence[bool], eps_init: Sequence[float],
+                 eps_end: Sequence[float], annealing_frames: Sequence[int], warmup_frames: int,
+                 in_key: str = "observation", action_key: str = "action") -> None:
         super().__init__()
         members = len(seeds)
         if network.num_members != members:
@@ -56,14 +58,15 @@ class PopulationQPolicy(TensorDictModuleBase):
             raise ValueError(f"{len(samples)} exploration kinds for {members} members")
         if any(samples) and network.log_sd_bounds is None:
             raise TypeError("Thompson sampling needs a network that returns (mean, log_sd): the ADFQ network")
-        self.in_keys = [in_key]
+        self.in_keys = list(getattr(network, "in_keys", [in_key]))  # the conv network's: observation, local_map
         self.out_keys = [action_key]
         self.network = network
         self.num_actions = num_actions
         self.worlds = worlds_per_member
         self.samples = samples  # which members explore by Thompson sampling
         self.warmup_frames = warmup_frames
-        device = network.weight0.device
+        first = next(network.parameters())  # the networks' parameters share one device and dtype
+        device = first.device
         self.keys = rng.seed_keys(list(seeds), rng.Purpose.ACTING, device)
         self._sampling = torch.tensor(samples, device=device).unsqueeze(-1)  # [P, 1]
         as_tensor = lambda values: torch.tensor(list(values), dtype=torch.float64, device=device)  # noqa: E731
@@ -74,7 +77,7 @@ class PopulationQPolicy(TensorDictModuleBase):
                        "random": rng.CounterStream(rng.uniform, self.keys, rng.ExplorationStream.RANDOM, W)}
         if any(samples):
             self._draws["thompson"] = rng.CounterStream(rng.normal, self.keys, rng.ExplorationStream.THOMPSON, W * A,
-                                                        network.weight0.dtype)
+                                                        first.dtype)
 
     @property
     def steps(self) -> int:
@@ -104,10 +107,11 @@ class PopulationQPolicy(TensorDictModuleBase):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Write the chosen action of every world (int64, shape = the batch shape)."""
         obs = tensordict.get(self.in_keys[0])
-        members = self.keys.shape[0]
-        grouped = obs.reshape(members, self.worlds, obs.shape[-1])
+        members, batch_dims = self.keys.shape[0], obs.dim() - 1
+        grouped = [value.reshape(members, self.worlds, *value.shape[batch_dims:])
+                   for value in (tensordict.get(key) for key in self.in_keys)]
         with torch.no_grad():
-            out = self.network(grouped)
+            out = self.network(*grouped)
         if not exploring():
             action = (out[0] if isinstance(out, tuple) else out).argmax(-1)
             return tensordict.set(self.out_keys[0], action.reshape(obs.shape[:-1]))

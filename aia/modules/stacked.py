@@ -144,6 +144,13 @@ class StackedQNetwork(nn.Module):
         return mean, log_sd.clamp(*self.log_sd_bounds)
 
 
+def _channels_last(x: Tensor) -> Tensor:
+    """``x`` ``[N, C, H, W]`` laid out channels-last (the strides ``contiguous(memory_format=torch.channels_last)``
+    gives), copied only where it is not; written with permutes so that it also runs under ``torch.vmap`` (the
+    evaluation snapshots, :class:`~aia.modules.SnapshotPolicy`), which cannot query a memory format."""
+    return x.permute(0, 2, 3, 1).contiguous().permute(0, 3, 1, 2)
+
+
 class StackedConvQNetwork(nn.Module):
     """``P`` :class:`~aia.modules.ConvQNetwork` s evaluated as one: ``observation`` ``[P, ..., F]`` and
     ``local_map`` ``[P, ..., C, H, W]`` to the heads' outputs ``[P, ..., A]`` (ADFQ: ``(mean, log_sd)``).
@@ -239,9 +246,9 @@ class StackedConvQNetwork(nn.Module):
         images = local_map.reshape(members, -1, channels, height, width)
         count = images.shape[1]
         x = images.transpose(0, 1).reshape(count, members * channels, height, width)
-        x = x.contiguous(memory_format=torch.channels_last)
+        x = _channels_last(x)
         for i, (padding, stride) in enumerate(zip(self.paddings, self.strides, strict=True)):
-            weight = getattr(self, f"conv_weight{i}").flatten(0, 1).contiguous(memory_format=torch.channels_last)
+            weight = _channels_last(getattr(self, f"conv_weight{i}").flatten(0, 1))
             bias = getattr(self, f"conv_bias{i}").flatten()
             # the convolution pads both sides alike (F.pad would copy the images); TensorFlow's odd cell after
             before = padding[0]

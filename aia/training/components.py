@@ -17,12 +17,20 @@ from aia.logging import MCAPLogger, SceneRecorder
 from aia.logging.segments import RESUMED_AFTER_KEY, next_segment
 from aia.losses import ADFQLoss, use_memberwise_double
 from aia.modules import ADFQNetwork, ConvQNetwork, ConvTorso, StackedConvQNetwork, StackedQNetwork, make_q_network
-from aia.modules.q_networks import MAP_KEY, make_qvalue_actor
+from aia.modules.q_networks import MAP_KEY, OBSERVATION_KEY, make_qvalue_actor
 
 
 def map_shape(observation_spec) -> tuple[int, int, int] | None:
     """``(C, H, W)`` of the observation's map image (its ``local_map`` key), or ``None`` without one."""
     return tuple(observation_spec[MAP_KEY].shape[-3:]) if MAP_KEY in observation_spec else None
+
+
+def observation_layout(observation_spec) -> str:
+    """What a Q-network reads of a world's observation, in words: ``"observation [8], local_map [1, 28, 28]"``
+    (the belief features' size and, with a map image, its ``C, H, W``)."""
+    image = map_shape(observation_spec)
+    features = f"{OBSERVATION_KEY} [{observation_spec[OBSERVATION_KEY].shape[-1]}]"
+    return features if image is None else f"{features}, {MAP_KEY} [{', '.join(map(str, image))}]"
 
 
 def make_network(cfg: DictConfig, obs_dim: int, num_actions: int,
@@ -47,7 +55,7 @@ def make_network(cfg: DictConfig, obs_dim: int, num_actions: int,
 
 def make_actor(cfg: DictConfig, env) -> TensorDictSequential:
     """The greedy Q-value actor of one run for ``env``'s observation (what ``aia-eval`` loads a checkpoint into)."""
-    network = make_network(cfg, env.observation_spec["observation"].shape[-1], env.action_spec.n,
+    network = make_network(cfg, env.observation_spec[OBSERVATION_KEY].shape[-1], env.action_spec.n,
                            map_shape(env.observation_spec))
     return make_qvalue_actor(network.to(cfg.device), env.action_spec, adfq=cfg.algo.name == "adfq")
 

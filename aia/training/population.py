@@ -25,10 +25,10 @@ from aia.envs import make_env
 from aia.envs.config import TrackingConfig
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import Evaluator
-from aia.modules import PopulationQPolicy, StackedQNetwork
-from aia.modules.q_networks import make_qvalue_actor
+from aia.modules import PopulationQPolicy, StackedConvQNetwork, StackedQNetwork
+from aia.modules.q_networks import MAP_KEY, OBSERVATION_KEY, make_qvalue_actor
 from aia.training.checkpoint import TrainingState, load_member
-from aia.training.components import make_actor, make_loss, make_recorders, make_stacked_network
+from aia.training.components import make_actor, make_loss, make_recorders, make_stacked_network, map_shape
 from aia.training.optimizer import StackedAdam, Updater
 from aia.training.replay import MemberReplay
 from aia.training.target_cache import TargetCache
@@ -44,7 +44,7 @@ class Population:
     cfgs: list[DictConfig]
     env_config: TrackingConfig
     env: EnvBase  # the training env of P * W worlds, member-major
-    network: StackedQNetwork
+    network: StackedQNetwork | StackedConvQNetwork
     policy: PopulationQPolicy
     loss: LossModule
     online: TensorDictBase  # the loss module's value_network_params
@@ -74,11 +74,13 @@ def build_population(cfgs: list[DictConfig], loggers: Sequence[Logger | None], c
     env_config = to_tracking_config(cfg.env)
     env = make_env(env_config, batch_size=P * W, device=cfg.device, compile=cfg.compile.env)
     # The collector copies every key of every frame: keep what the policy, the loss and the score read.
-    env.append_transform(SelectTransform("observation", "logdet_cov", keep_rewards=True, keep_dones=True))
+    image = map_shape(env.observation_spec)
+    observed = (OBSERVATION_KEY, MAP_KEY) if image else (OBSERVATION_KEY,)
+    env.append_transform(SelectTransform(*observed, "logdet_cov", keep_rewards=True, keep_dones=True))
     eval_env = make_env(env_config, batch_size=cfg.eval.episodes * cfg.eval.per_rollout * P, device=cfg.device,
                         compile=cfg.compile.env)
-    obs_dim, num_actions = env.observation_spec["observation"].shape[-1], env.action_spec.n
-    network = make_stacked_network(cfgs, obs_dim, num_actions)
+    obs_dim, num_actions = env.observation_spec[OBSERVATION_KEY].shape[-1], env.action_spec.n
+    network = make_stacked_network(cfgs, obs_dim, num_actions, image)
     actor = make_qvalue_actor(network, env.action_spec, adfq=cfg.algo.name == "adfq")
     annealing = [max(1, int(c.exploration.get("annealing_fraction", 1.0) * cfg.frames)) for c in cfgs]
     policy = PopulationQPolicy(

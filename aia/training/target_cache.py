@@ -21,7 +21,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
 from aia.losses import ADFQLoss
-from aia.modules import StackedQNetwork
+from aia.modules import StackedConvQNetwork, StackedQNetwork
 from aia.runtime.compiling import compiled_update
 from aia.training.replay import MemberReplay
 
@@ -111,8 +111,8 @@ class TargetCache:
     one graph, dynamic in the number of rows).
     """
 
-    def __init__(self, loss: ADFQLoss, network: StackedQNetwork, replay: MemberReplay, worlds: int = 1,
-                 compile: bool = False) -> None:
+    def __init__(self, loss: ADFQLoss, network: StackedQNetwork | StackedConvQNetwork, replay: MemberReplay,
+                 worlds: int = 1, compile: bool = False) -> None:
         self.loss = loss
         self.network = network
         self.replay = replay
@@ -227,9 +227,12 @@ class TargetCache:
     def _in_layer_dtypes(self, params: TensorDictBase) -> TensorDictBase:
         """``params`` (the loss's nested parameters) with each layer's tensors cast as the network's forward
         would cast them at every call (:meth:`StackedQNetwork.in_layer_dtypes`), once for the whole period."""
-        layers = {key.rsplit(".", 1)[-1]: (key, value) for key, value in params.flatten_keys(".").items()}
-        cast = self.network.in_layer_dtypes({name: value for name, (_, value) in layers.items()})
-        return TensorDict({key: cast[name] for name, (key, _) in layers.items()}).unflatten_keys(".")
+        flat = params.flatten_keys(".")
+        # the loss keys each parameter by the actor's path to the network and the network's own name
+        names = [name for name, _ in self.network.named_parameters()]
+        own = {key: next(name for name in names if key.endswith(f".{name}")) for key, _ in flat.items()}
+        cast = self.network.in_layer_dtypes({own[key]: value for key, value in flat.items()})
+        return TensorDict({key: cast[name] for key, name in own.items()}).unflatten_keys(".")
 
 
 def _members_first(leaves: tuple[torch.Tensor, ...], chunk: slice) -> tuple[torch.Tensor, ...]:

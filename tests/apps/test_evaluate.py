@@ -14,6 +14,7 @@ import aia.apps.evaluate as evaluate_app
 from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner
 from aia.logging import read_run
 from aia.training import train
+from tests.training.test_population import MAP_OBSERVATION
 
 
 @pytest.fixture(scope="module")
@@ -22,6 +23,17 @@ def checkpoint(tmp_path_factory):
     with initialize_config_module(config_module="aia.conf", version_base="1.3"):
         cfg = compose(config_name="train", overrides=["frames=200", "env.max_steps=40", "warmup_frames=100",
                                                       "logger=none", "eval.episodes=2", "batch_size=16"])
+    train(cfg, out)
+    return out / "checkpoints" / "last.pt"
+
+
+@pytest.fixture(scope="module")
+def map_checkpoint(tmp_path_factory):
+    """A policy trained on ttenv v4's map observation (8 x 8 images)."""
+    out = tmp_path_factory.mktemp("map_run")
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=[*MAP_OBSERVATION, "frames=60", "warmup_frames=40",
+                                                      "eval.every_episodes=3"])
     train(cfg, out)
     return out / "checkpoints" / "last.pt"
 
@@ -134,3 +146,32 @@ def test_population_launcher_runs_checkpoint_jobs_one_by_one_and_a_bad_job_fails
         assert written["scores"] == evaluate_checkpoint(checkpoint, 2, 0.05, seed, "cpu")["scores"]
         assert read_run(tmp_path / str(job) / "run.mcap").metadata["run"]["seed"] == str(seed)
     assert not (tmp_path / "1" / "eval.json").exists() and not (tmp_path / "3" / "run.mcap").exists()
+
+
+def test_a_map_checkpoint_plays_on_another_map_of_its_layout_and_another_layout_is_refused(
+        tmp_path, monkeypatch, capsys, checkpoint, map_checkpoint):
+    """``env=...`` with a checkpoint: the same observation layout on another map (the empty map, random maps)
+    plays; another layout (no map image, another image size or channel count, other belief features) is refused
+    in one line naming both, exit status 2, no run log."""
+    small = ["env=ttenv_v4", "env.features.im_size=8", "env.max_steps=20"]
+    for name, other_map in (("empty", []), ("random_obstacles", ["env.target.collision_rule=reflect"])):
+        _eval_app(monkeypatch, f"checkpoint={map_checkpoint}", "episodes=2", *small, f"env.map={name}", *other_map,
+                  f"hydra.run.dir={tmp_path / name}")
+        written = json.loads((tmp_path / name / "eval.json").read_text())
+        assert len(written["scores"]) == 2 and np.isfinite(written["scores"]).all()
+        assert read_run(tmp_path / name / "run.mcap").config_value("env.map") == name
+    trained = "observation [8], local_map [1, 8, 8]"
+    for path, overrides, layout in (
+            (map_checkpoint, ["env=ttenv_v1"], "observation [8]"),
+            (map_checkpoint, ["env=ttenv_v4"], "observation [8], local_map [1, 28, 28]"),
+            (map_checkpoint, [*small[:2], "env.features.local_map=occupancy_visits"], "local_map [5, 8, 8]"),
+            (checkpoint, ["env=small2"], "observation [14]"),  # a belief-feature checkpoint, another target count
+    ):
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as info:
+            _eval_app(monkeypatch, f"checkpoint={path}", "episodes=1", *overrides, f"hydra.run.dir={tmp_path / 'no'}")
+        err = capsys.readouterr().err.strip()
+        assert info.value.code == 2 and len(err.splitlines()) == 1, err
+        assert err.startswith("aia-eval: error: env='") and layout in err
+        assert (trained if path == map_checkpoint else "observation [8] ") in err
+    assert not (tmp_path / "no").exists() or not list((tmp_path / "no").rglob("*.mcap"))

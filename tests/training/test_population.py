@@ -146,3 +146,33 @@ def test_a_population_trains_on_each_target_and_filter_preset(tmp_path, setting)
     assert [state.frames for state in states] == [60, 60] and all(state.updates > 0 for state in states)
     scores = torch.tensor([state.eval_scores for state in states])
     assert scores.shape[1] >= 1 and torch.isfinite(scores).all()
+
+
+# ttenv v4's map observation, small: an 8 x 8 image, one convolution, one hidden layer; 20-step episodes
+MAP_OBSERVATION = ("env=ttenv_v4", "env.features.im_size=8", "conv_layers=[[2,3,2]]", "hidden=[8]", "batch_size=8",
+                   "env.max_steps=20", "warmup_frames=50", "eval.episodes=1", "eval.per_rollout=1", "logger=none",
+                   "algo=adfq", "exploration=thompson")
+
+
+def test_a_conv_population_on_the_map_observation_is_its_members_solo_runs_and_resumes(tmp_path):
+    """``env=ttenv_v4``: the population trains conv networks on ``local_map`` (acting, replay, ADFQ's cached
+    targets, evaluations); member 1's evaluations before the first update (frames 20 and 40) are the solo run's
+    with its seed; a population stopped at frame 40 and resumed continues as the uninterrupted one."""
+    seeds = (3, 7)
+    solo = train(_config(*MAP_OBSERVATION, "frames=100", "seed=7"), tmp_path / "solo")
+    whole = train_population([_config(*MAP_OBSERVATION, "frames=100", f"seed={s}") for s in seeds],
+                             [tmp_path / "whole" / str(s) for s in seeds])
+    assert [(s.frames, s.evaluations) for s in whole] == [(100, 5)] * 2 and whole[0].updates == 51
+    assert whole[1].eval_scores[:2] == solo.eval_scores[:2]
+    assert whole[0].eval_scores != whole[1].eval_scores
+    checkpoint = torch.load(tmp_path / "whole" / "7" / "checkpoints" / "last.pt", weights_only=False)
+    assert checkpoint["replay"]["transitions"]["local_map"].shape == (100, 1, 8, 8)
+    assert "module.0.module.torso.1.weight" in checkpoint["actor"]  # a solo conv actor: what aia-eval loads
+    train_population([_config(*MAP_OBSERVATION, "frames=40", f"seed={s}") for s in seeds],
+                     [tmp_path / "first" / str(s) for s in seeds])
+    resumed = train_population([_config(*MAP_OBSERVATION, "frames=100", f"seed={s}",
+                                        f"resume={tmp_path / 'first' / str(s) / 'checkpoints' / 'last.pt'}")
+                                for s in seeds], [tmp_path / "second" / str(s) for s in seeds])
+    for before, after in zip(whole, resumed, strict=True):
+        assert (after.frames, after.updates, after.evaluations) == (before.frames, before.updates, before.evaluations)
+        assert after.eval_scores == pytest.approx(before.eval_scores, rel=1e-4)
