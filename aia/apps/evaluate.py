@@ -1,12 +1,12 @@
 """``aia-eval``: score a policy on fresh episodes: one saved by ``aia-train`` or the ARVI planner.
 
 ``policy=checkpoint`` rebuilds the network from the config stored in the checkpoint and acts at ``epsilon`` in
-the checkpoint's own setting, or in the one the command line sets (``env=<preset>``, ``env.<key>=...``) if its
-observation has the same layout (the same belief features and map image, on any map; another is refused);
-``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``planner.*``) in the setting ``env``. Either
-way ``episodes`` episodes run as one batched rollout through the same evaluation path; the app prints the
-score mean and std (SPEC 9) and writes ``eval.json`` and ``run.mcap`` (the scores, the config, and world 0's
-episode as Foxglove scenes: ``aia-log render`` draws it as in the paper's Fig. 3).
+the checkpoint's own setting, or in one the command line sets (``env.<key>=...`` changes keys of its own,
+``env=<preset>`` replaces it) whose observation has the same layout (the same belief features and map image,
+on any map; another is refused); ``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``planner.*``)
+in the setting ``env``. Either way ``episodes`` episodes run as one batched rollout through the same evaluation
+path; the app prints the score mean and std (SPEC 9) and writes ``eval.json`` and ``run.mcap`` (the scores, the
+config, and world 0's episode as Foxglove scenes: ``aia-log render`` draws it as in the paper's Fig. 3).
 
 ``aia-eval -m policy=arvi seed=0,...,9 hydra/launcher=population`` runs :func:`evaluate_jobs`: all seeds'
 episodes in one rollout, planned in one batch with a budget group per seed, so that under a node or pass
@@ -88,9 +88,19 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
 
 
 def checkpoint_setting(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig | None:
-    """The setting ``policy=checkpoint`` evaluates in: ``cfg.env`` where the command line (``overrides``) sets
-    ``env`` or one of its keys, else ``None`` (the checkpoint's own)."""
-    return cfg.env if cfg.policy == "checkpoint" and overrides_group(overrides, "env") else None
+    """The setting ``policy=checkpoint`` evaluates in, as the command line (``overrides``) sets it: with
+    ``env=<preset>``, that preset (``cfg.env``, its ``env.<key>`` overrides applied); with ``env.<key>=...``
+    alone, the checkpoint's own setting with those keys as ``cfg.env`` has them; without either, ``None`` (the
+    checkpoint's own)."""
+    changed = [override.lstrip("+~").split("=")[0] for override in overrides_group(overrides, "env")]
+    if cfg.policy != "checkpoint" or not changed:
+        return None
+    if "env" in changed:
+        return cfg.env
+    setting = OmegaConf.create(load_checkpoint(cfg.checkpoint)["config"]).env
+    for key in changed:
+        OmegaConf.update(setting, key.removeprefix("env."), OmegaConf.select(cfg, key), merge=False)
+    return setting
 
 
 def check_setting(path: str | Path, setting: DictConfig) -> None:

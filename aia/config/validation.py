@@ -72,9 +72,9 @@ def validate_train_config(cfg: DictConfig) -> None:
 
 def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None:
     """Check the composed ``aia-eval`` config (conf/eval.yaml); ``overrides`` are the command line's
-    (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` the checkpoint carries its own setting
-    unless the command line sets ``env`` (:func:`overrides_group`), and a ``planner`` override, which it would
-    ignore, is refused."""
+    (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` a ``planner`` override, which it would
+    ignore, is refused (an ``env`` override sets the setting a checkpoint is evaluated in: ``aia.apps.evaluate``
+    checks it against the checkpoint)."""
     check_settings(cfg, EvalConfig)
     if cfg.policy == "arvi":
         to_tracking_config(cfg.env)
@@ -87,8 +87,6 @@ def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None
     if ignored:
         key, _, value = ignored[0].lstrip("+~").partition("=")
         raise ConfigError(key, value, "no planner override with policy=checkpoint (planner applies to policy=arvi)")
-    if overrides_group(overrides, "env"):
-        to_tracking_config(cfg.env)
     require(not OmegaConf.is_missing(cfg, "checkpoint"), "checkpoint", "???",
             "the path of a checkpoint .pt written by aia-train (required with policy=checkpoint)")
     check_checkpoint_file("checkpoint", Path(str(cfg.checkpoint)))

@@ -110,7 +110,6 @@ def test_eval_rejects_bad_input_in_one_line(not_a_checkpoint, tmp_path, monkeypa
         (["checkpoint=/nonexistent.pt"], ["checkpoint='/nonexistent.pt'", "existing"]),
         ([f"checkpoint={not_a_checkpoint}"], [f"checkpoint='{not_a_checkpoint}'", "torch checkpoint"]),
         ([f"checkpoint={not_a_checkpoint}", "planner.horizon=3"], ["planner.horizon='3'", "policy=arvi"]),
-        ([f"checkpoint={not_a_checkpoint}", "env.num_targets=0"], ["env.num_targets=0", ">= 1"]),
         (["policy=psychic"], ["policy='psychic'", "arvi"]),
         (["policy=arvi", "episodes=0"], ["episodes=0", ">= 1"]),
         (["epsilon=1.5", "policy=arvi"], ["epsilon=1.5", "<= 1"]),

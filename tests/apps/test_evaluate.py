@@ -150,28 +150,31 @@ def test_population_launcher_runs_checkpoint_jobs_one_by_one_and_a_bad_job_fails
 
 def test_a_map_checkpoint_plays_on_another_map_of_its_layout_and_another_layout_is_refused(
         tmp_path, monkeypatch, capsys, checkpoint, map_checkpoint):
-    """``env=...`` with a checkpoint: the same observation layout on another map (the empty map, random maps)
-    plays; another layout (no map image, another image size or channel count, other belief features) is refused
-    in one line naming both, exit status 2, no run log."""
-    small = ["env=ttenv_v4", "env.features.im_size=8", "env.max_steps=20"]
-    for name, other_map in (("empty", []), ("random_obstacles", ["env.target.collision_rule=reflect"])):
-        _eval_app(monkeypatch, f"checkpoint={map_checkpoint}", "episodes=2", *small, f"env.map={name}", *other_map,
+    """``env=<preset>`` or ``env.<key>=...`` (the checkpoint's setting with that key) with a checkpoint: the
+    same observation layout on another map (the empty map, random maps) plays; another layout (no map image,
+    another image size or channel count, other belief features) is refused in one line naming both, exit status
+    2, no run log."""
+    for name, overrides in (("empty", ["env=ttenv_v4", "env.features.im_size=8", "env.max_steps=20"]),
+                            ("random_obstacles", ["env.target.collision_rule=reflect"])):
+        _eval_app(monkeypatch, f"checkpoint={map_checkpoint}", "episodes=2", f"env.map={name}", *overrides,
                   f"hydra.run.dir={tmp_path / name}")
         written = json.loads((tmp_path / name / "eval.json").read_text())
         assert len(written["scores"]) == 2 and np.isfinite(written["scores"]).all()
-        assert read_run(tmp_path / name / "run.mcap").config_value("env.map") == name
-    trained = "observation [8], local_map [1, 8, 8]"
-    for path, overrides, layout in (
-            (map_checkpoint, ["env=ttenv_v1"], "observation [8]"),
-            (map_checkpoint, ["env=ttenv_v4"], "observation [8], local_map [1, 28, 28]"),
-            (map_checkpoint, [*small[:2], "env.features.local_map=occupancy_visits"], "local_map [5, 8, 8]"),
-            (checkpoint, ["env=small2"], "observation [14]"),  # a belief-feature checkpoint, another target count
+        run = read_run(tmp_path / name / "run.mcap")
+        assert run.config_value("env.map") == name and run.config_value("env.features.im_size") == 8
+    trained = "layout of the setting {} was trained in, observation [8]{}"
+    maps, features = trained.format(map_checkpoint, ", local_map [1, 8, 8] ("), trained.format(checkpoint, " (")
+    for path, overrides, words in (
+            (map_checkpoint, ["env=ttenv_v1"], ["env='observation [8]'", maps]),
+            (map_checkpoint, ["env=ttenv_v4"], ["env='observation [8], local_map [1, 28, 28]'", maps]),
+            (map_checkpoint, ["env.features.local_map=occupancy_visits"], ["local_map [5, 8, 8]'", maps]),
+            (checkpoint, ["env=small2"], ["env='observation [14]'", features]),  # another number of targets
+            (map_checkpoint, ["env.num_targets=0"], ["env.num_targets=0: expected an integer >= 1"]),
     ):
         capsys.readouterr()
         with pytest.raises(SystemExit) as info:
             _eval_app(monkeypatch, f"checkpoint={path}", "episodes=1", *overrides, f"hydra.run.dir={tmp_path / 'no'}")
         err = capsys.readouterr().err.strip()
-        assert info.value.code == 2 and len(err.splitlines()) == 1, err
-        assert err.startswith("aia-eval: error: env='") and layout in err
-        assert (trained if path == map_checkpoint else "observation [8] ") in err
+        assert info.value.code == 2 and len(err.splitlines()) == 1 and err.startswith("aia-eval: error: env"), err
+        assert all(word in err for word in words), err
     assert not (tmp_path / "no").exists() or not list((tmp_path / "no").rglob("*.mcap"))
