@@ -30,6 +30,8 @@
 #                SLURM_OVERRIDES="hydra.launcher.partition=cpu hydra.launcher.cpus_per_task=4" (keys both launchers
 #                have: partition, cpus_per_task, mem_gb, timeout_min, gpus_per_node) and TRAIN_OVERRIDES="threads=4"
 #   METHODS      learners [dqn,ddqn,adfq_egreedy,adfq_ts] (conf/method/)
+#   PHASES       which phases run [learners,arvi,figures]: e.g. PHASES=figures redraws the figures and tables from
+#                the runs already in $OUT, PHASES=learners,arvi leaves the drawing to a later call
 #   ARVI_EPISODES  episodes per ARVI seed, planned together in one batch [5]
 #   ARVI_BUDGET  wall-clock seconds per plan [1.0, the reference's], shared by a seed's episodes; each seed
 #                plans in its own process, $JOBS at a time
@@ -56,6 +58,7 @@ ARVI_BUDGET=${ARVI_BUDGET:-1.0}
 METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
 ARVI_MIN_RANGES=${ARVI_MIN_RANGES-"0 2"}  # set but empty: no ARVI runs
 LAUNCHER=${LAUNCHER:-population}
+PHASES=${PHASES:-learners,arvi,figures}
 read -r -a SLURM_EXTRA <<< "${SLURM_OVERRIDES:-}"
 case "$LAUNCHER" in
   population)
@@ -94,6 +97,15 @@ seed_list() {
 }
 SEED_LIST=$(seed_list SEEDS "$SEEDS")
 ARVI_SEED_LIST=$(seed_list ARVI_SEEDS "$ARVI_SEEDS")
+declare -A RUN_PHASE=()
+IFS=, read -r -a PHASE_LIST <<< "$PHASES"
+for item in "${PHASE_LIST[@]}"; do
+  case "$item" in
+    learners|arvi|figures) RUN_PHASE[$item]=1 ;;
+    *) echo "PHASES='$PHASES': '$item' is not a phase; expected some of learners,arvi,figures" >&2; exit 2 ;;
+  esac
+done
+if (( ${#RUN_PHASE[@]} == 0 )); then echo "PHASES='$PHASES': no phase; expected some of learners,arvi,figures" >&2; exit 2; fi
 if [[ -n "${ARVI_NODES:-}" ]]; then
   ARVI_BUDGET_OVERRIDES=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
 else
@@ -155,13 +167,15 @@ baseline() {
 # One sweep of every setting's learners: DQN with Double DQN and ADFQ-egreedy with ADFQ-TS share a program
 # (aia/training/members.py), so each setting trains two populations of 2 x seeds members; the launcher starts
 # the largest populations first, $JOBS at a time.
-phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations ($LAUNCHER)"
-aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEED_LIST" threads=1 \
-  "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.sweep.dir=$OUT/sweeps/learners" \
-  "$(run_dir learners)" \
-  'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,resume,compile.update,compile.env,compile.policy]'
+if [[ -n "${RUN_PHASE[learners]:-}" ]]; then
+  phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations ($LAUNCHER)"
+  aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEED_LIST" threads=1 \
+    "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.sweep.dir=$OUT/sweeps/learners" \
+    "$(run_dir learners)" \
+    'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,resume,compile.update,compile.env,compile.policy]'
+fi
 ENVS=$(joined "${SETTING_LIST[@]}")
-for min_range in $ARVI_MIN_RANGES; do
+for min_range in ${RUN_PHASE[arvi]:+$ARVI_MIN_RANGES}; do
   baseline "$min_range"
   phase "$label: $SETTINGS x seeds $ARVI_SEEDS"
   aia-eval -m "${ARVI_LAUNCHER[@]}" policy=arvi "env=$ENVS" "seed=$ARVI_SEED_LIST" \
@@ -198,15 +212,17 @@ figures() {
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
     --out "$FIGURES/${setting}_trajectory.png"
 }
-phase "figures: Fig. 2 curves, results tables and Fig. 3-style trajectories, $JOBS settings at a time"
 running=0 failed=0
-for setting in $SETTINGS; do
+if [[ -n "${RUN_PHASE[figures]:-}" ]]; then
+  phase "figures: Fig. 2 curves, results tables and Fig. 3-style trajectories, $JOBS settings at a time"
+fi
+for setting in ${RUN_PHASE[figures]:+$SETTINGS}; do
   figures "$setting" > "$FIGURES/$setting.log" 2>&1 &
   running=$(( running + 1 ))
   if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
 done
 while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
-for setting in $SETTINGS; do echo "-- $setting"; cat "$FIGURES/$setting.log"; done
+for setting in ${RUN_PHASE[figures]:+$SETTINGS}; do echo "-- $setting"; cat "$FIGURES/$setting.log"; done
 if (( failed )); then echo "a setting's figures failed (its output above)" >&2; exit 1; fi
 phase ""
 machine_speed end

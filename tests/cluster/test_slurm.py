@@ -199,11 +199,13 @@ def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at
 
 def test_reproduce_sh_sends_its_learners_and_arvi_to_slurm(slurm_cluster, tmp_path):
     """``LAUNCHER=population_slurm scripts/reproduce.sh`` on a tiny budget: the learners' population as a task of a
-    job array, the ARVI seed as a SLURM job of its own, the table, curves and trajectory drawn here."""
+    job array, the ARVI seed as a SLURM job of its own (``PHASES=learners,arvi``: the figures, drawn on this
+    machine whatever the launcher, are tested in tests/scripts/test_reproduce.py)."""
     script = Path(__file__).resolve().parents[2] / "scripts" / "reproduce.sh"
     env = {**slurm_cluster.env(), "SETTINGS": "small2", "SEEDS": "0", "METHODS": "adfq_egreedy,adfq_ts",
            "FRAMES": "300", "ARVI_SEEDS": "0", "ARVI_EPISODES": "1", "ARVI_NODES": "100", "ARVI_MIN_RANGES": "2",
-           "OUT": "out", "TRAIN_OVERRIDES": "compile.update=false compile.env=false compile.policy=false",
+           "OUT": "out", "PHASES": "learners,arvi",
+           "TRAIN_OVERRIDES": "compile.update=false compile.env=false compile.policy=false",
            "LAUNCHER": "population_slurm", "SLURM_OVERRIDES": " ".join(TEST_RESOURCES)}
     result = subprocess.run(["bash", str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
                             timeout=slurm_cluster.sweep_timeout_s)
@@ -217,8 +219,7 @@ def test_reproduce_sh_sends_its_learners_and_arvi_to_slurm(slurm_cluster, tmp_pa
     # each phase's SLURM jobs left their submitit records in its sweep folder
     assert list((out / "sweeps" / "learners" / ".submitit").glob("*/*_result.pkl"))
     assert list((out / "sweeps" / "arvi_min2" / ".submitit").glob("*/*_result.pkl"))
-    assert "| algo=adfq, exploration=thompson | 1 |" in (out / "figures" / "small2.md").read_text()
-    assert (out / "figures" / "small2_trajectory.png").is_file()
+    assert not list((out / "figures").iterdir())
 
 
 def _start_now(job_id: str) -> None:

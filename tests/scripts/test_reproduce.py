@@ -21,35 +21,34 @@ def run_script(cwd: Path, **env: str) -> subprocess.CompletedProcess:
 
 def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajectory(tmp_path):
     result = run_script(
-        tmp_path, SETTINGS="empty1 small2", SEEDS="0", METHODS="adfq_egreedy,adfq_ts", FRAMES="300", ARVI_SEEDS="0-1",
+        tmp_path, SETTINGS="small2", SEEDS="0", METHODS="dqn,adfq_ts", FRAMES="300", ARVI_SEEDS="0-1",
         ARVI_EPISODES="1", ARVI_NODES="100", ARVI_MIN_RANGES="2", JOBS="2", OUT="out",
         TRAIN_OVERRIDES="compile.update=false compile.env=false compile.policy=false",
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    # one sweep of both settings: per setting, the two ADFQ methods share one population
-    assert "4 jobs in 2 populations of 2 members each" in result.stdout
-    # two processes: each population's end is announced as it comes, whichever ends first
+    # one sweep: DQN and ADFQ-TS are two programs, so two populations, trained in two processes whose ends are
+    # announced as they come
+    assert "2 jobs in 2 populations of 1 member each" in result.stdout
     assert "population launcher: 1/2 done after " in result.stdout
     assert "population launcher: 2/2 done after " in result.stdout
-    for name in ("empty1", "small2"):
-        setting = tmp_path / "out" / name
-        # Run folders are named by what varies (the compile switches are not part of a run's name).
-        for method in ("adfq_egreedy", "adfq_ts"):
-            assert (setting / "learners" / f"method={method},seed=0" / "run.mcap").is_file()
-        for seed in (0, 1):  # ARVI_SEEDS="0-1": a range
-            assert (setting / "arvi_min2" / f"seed={seed}" / "run.mcap").is_file()
-        assert not (setting / "arvi").exists()  # ARVI_MIN_RANGES="2": only the 2 m baseline
-        # The trajectory step reads the checkpoint of a run whose folder name holds '=' and ','.
-        assert (setting / "trajectory" / "run.mcap").is_file()
+    setting = tmp_path / "out" / "small2"
+    # Run folders are named by what varies (the compile switches are not part of a run's name).
+    for method in ("dqn", "adfq_ts"):
+        assert (setting / "learners" / f"method={method},seed=0" / "run.mcap").is_file()
+    for seed in (0, 1):  # ARVI_SEEDS="0-1": a range
+        assert (setting / "arvi_min2" / f"seed={seed}" / "run.mcap").is_file()
+    assert not (setting / "arvi").exists()  # ARVI_MIN_RANGES="2": only the 2 m baseline
+    # The trajectory step reads the checkpoint of a run whose folder name holds '=' and ','.
+    assert (setting / "trajectory" / "run.mcap").is_file()
     assert (tmp_path / "out" / "sweeps" / "learners" / "multirun.yaml").is_file()
     figures = tmp_path / "out" / "figures"
     table = (figures / "small2.md").read_text()
-    assert "| algo=adfq, exploration=thompson | 1 |" in table and "| algo=adfq, exploration=egreedy | 1 |" in table
+    assert "| algo=adfq, exploration=thompson | 1 |" in table and "| algo=dqn, exploration=egreedy | 1 |" in table
     assert "training episodes to reach ARVI, min range 2 m" in table
     # one seed per learner: aia-log stats refuses (the IQM needs 4 runs), and the script goes on
-    assert "'algo=adfq, exploration=egreedy' has 1 run: --statistic iqm needs at least 4" in result.stdout
+    assert "has 1 run: --statistic iqm needs at least 4" in result.stdout
     assert "no statistics for small2" in result.stdout and not (figures / "small2_stats.md").exists()
-    with Image.open(figures / "empty1_trajectory.png") as strip:
+    with Image.open(figures / "small2_trajectory.png") as strip:
         assert strip.size == (5 * 320, 320)  # 5 frames of 320 pixels
     with Image.open(figures / "small2.png") as curves:
         assert min(curves.size) > 200
@@ -83,8 +82,11 @@ def test_seed_ranges_expand_and_a_bad_one_is_named(tmp_path):
     assert not (tmp_path / "out").exists()  # refused before anything was written
 
 
-def test_an_unknown_launcher_is_named(tmp_path):
+def test_an_unknown_launcher_or_phase_is_named(tmp_path):
     result = run_script(tmp_path, LAUNCHER="joblib", OUT="out")
     assert result.returncode == 2
     assert result.stderr == "LAUNCHER='joblib': expected population or population_slurm\n"
+    result = run_script(tmp_path, PHASES="learners,plots", OUT="out")
+    assert result.returncode == 2
+    assert result.stderr == "PHASES='learners,plots': 'plots' is not a phase; expected some of learners,arvi,figures\n"
     assert not (tmp_path / "out").exists()  # refused before anything was written
