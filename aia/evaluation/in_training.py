@@ -25,7 +25,7 @@ from torchrl.envs import EnvBase
 from aia.evaluation.rollouts import run_episodes
 from aia.evaluation.scores import evaluation_summary
 from aia.logging import SceneRecorder
-from aia.modules import SnapshotPolicy, StackedQNetwork, parameter_snapshot
+from aia.modules import SnapshotPolicy, StackedConvQNetwork, StackedQNetwork, parameter_snapshot
 
 
 @dataclass
@@ -43,7 +43,8 @@ class Evaluator:
 
     Args:
         env: the evaluation env; its batch holds ``per_rollout`` groups of ``P`` members of ``episodes`` worlds.
-        network: the members' stacked Q-network being trained (ADFQ acts greedily on its means).
+        network: the members' stacked Q-network being trained (ADFQ acts greedily on its means), a conv network
+            reading the env's map image too (a ``local_map`` key).
         num_actions: size of the discrete action space.
         episodes: episodes per evaluation (``E``).
         epsilon: the evaluation's epsilon.
@@ -56,8 +57,8 @@ class Evaluator:
         compile: compile the snapshots' batched network (:class:`~aia.modules.SnapshotPolicy`).
     """
 
-    def __init__(self, env: EnvBase, network: StackedQNetwork, num_actions: int, episodes: int, epsilon: float,
-                 seeds: Sequence[int], noise_seeds: Sequence[int], first_index: int = 0,
+    def __init__(self, env: EnvBase, network: StackedQNetwork | StackedConvQNetwork, num_actions: int, episodes: int,
+                 epsilon: float, seeds: Sequence[int], noise_seeds: Sequence[int], first_index: int = 0,
                  recorders: Sequence[SceneRecorder] | None = None, record_every: int = 0,
                  compile: bool = False) -> None:
         worlds, members = env.batch_size[0], network.num_members
