@@ -4,6 +4,8 @@ every member; members that differ in a shared key are refused with the key named
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from hydra import compose, initialize_config_module
@@ -176,3 +178,20 @@ def test_a_conv_population_on_the_map_observation_is_its_members_solo_runs_and_r
     for before, after in zip(whole, resumed, strict=True):
         assert (after.frames, after.updates, after.evaluations) == (before.frames, before.updates, before.evaluations)
         assert after.eval_scores == pytest.approx(before.eval_scores, rel=1e-4)
+
+
+@pytest.mark.parametrize("method, preset", [
+    ("adfq_ts", ("experiment=ttenv_v5", "env.map=random_obstacles", "env.target.collision_rule=reflect",
+                 "env.features.im_size=6")),
+    ("dqn", ("experiment=random_obstacles", "env.num_targets=2")),
+])
+def test_a_short_population_run_on_each_map_preset(tmp_path, method, preset):
+    """The experiments on ttenv_v5's five-channel image (its visit maps, here on random maps) and on random maps
+    train a population of two and evaluate it."""
+    tiny = ("frames=60", "warmup_frames=40", "env.max_steps=20", "eval.episodes=1", "eval.per_rollout=1",
+            "logger=none", "hidden=[8]", "batch_size=8", "conv_layers=[[2,3,2]]", "compile.update=false",
+            "compile.env=false", "compile.policy=false")
+    states = train_population([_config(*preset, *tiny, f"method={method}", f"seed={s}") for s in (0, 1)],
+                              [tmp_path / str(s) for s in (0, 1)])
+    assert [(s.frames, s.evaluations) for s in states] == [(60, 3)] * 2
+    assert all(math.isfinite(score) for s in states for score in s.eval_scores)
