@@ -20,7 +20,8 @@ from aia.logging import read_run
 def test_local_sweep_runs_every_job(tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "aia.apps.train", "-m", "algo=dqn,adfq", "frames=120", "logger=none",
-         "env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "threads=1", f"hydra.sweep.dir={tmp_path}"],
+         "env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "threads=1", "hydra.launcher.n_jobs=1",
+         f"hydra.sweep.dir={tmp_path}"],
         capture_output=True, text=True, timeout=300,
     )
     assert result.returncode == 0, result.stderr
