@@ -1,7 +1,6 @@
 """``aia-train -m hydra/launcher=slurm`` on a real scheduler (the local cluster of scripts/slurm_local.sh):
 a sweep runs end to end and its job that fails inside SLURM is reported as failed instead of waited on, a
-preempted job comes back and finishes its run through ``resume=auto``, a population sweep sent as one batch
-job stops on the scheduler's signal and continues when submitted again, and ``hydra/launcher=population_slurm``
+preempted job comes back and finishes its run through ``resume=auto``, and ``hydra/launcher=population_slurm``
 runs a sweep's populations as SLURM tasks that requeue themselves at their time limit's signal and finish, as
 ``scripts/reproduce.sh`` does with ``LAUNCHER=population_slurm``."""
 
@@ -9,7 +8,6 @@ from __future__ import annotations
 
 import math
 import pickle
-import shlex
 import subprocess
 import time
 import uuid
@@ -95,56 +93,6 @@ def test_a_preempted_job_is_requeued_and_finishes_its_run_through_resume_auto(sl
     assert torch.load(sweep_dir / "0" / "checkpoints" / "last.pt", weights_only=False)["state"]["frames"] == frames
     [job] = slurm_cluster.jobs(name)
     assert job.state == "COMPLETED"
-
-
-def test_a_population_sweep_sent_as_one_batch_job_stops_on_the_schedulers_signal_and_resumes(slurm_cluster,
-                                                                                             tmp_path):
-    """A whole population sweep as one batch job, its script ``exec``-ing ``aia-train -m
-    hydra/launcher=population``: the scheduler's signal to the batch shell (``scancel --signal=USR1 --batch``,
-    what ``sbatch --signal=B:USR1@<seconds>`` sends before a time limit) reaches the launcher alone, which
-    forwards it; both populations end their episode with their checkpoints and logs marked stopped, and the
-    same script submitted again continues all four jobs to their end through ``resume=auto``."""
-    sweep_dir, frames, steps = tmp_path / "sweep", 3000, 50
-    overrides = ["hydra/launcher=population", "hydra.launcher.n_jobs=2", "seed=0,1", "hidden=[16],[24]",
-                 f"frames={frames}", "warmup_frames=50", f"env.max_steps={steps}", "eval.episodes=2",
-                 "logger.record_every_evaluations=0", "resume=auto", f"hydra.sweep.dir={sweep_dir}"]
-    (tmp_path / "job.sh").write_text("#!/bin/bash\nexec aia-train -m " + " ".join(map(shlex.quote, overrides)) + "\n")
-    name = f"aia-test-{uuid.uuid4().hex[:8]}"
-    logs = [sweep_dir / str(job) / "run.mcap" for job in range(4)]
-    deadline = time.monotonic() + slurm_cluster.sweep_timeout_s
-
-    def submit(output: str) -> str:
-        return subprocess.run(["sbatch", "--parsable", f"--job-name={name}", "--cpus-per-task=2", "--mem=2G",
-                               "--time=10", f"--output={tmp_path / output}", str(tmp_path / "job.sh")],
-                              capture_output=True, text=True, check=True, timeout=30, env=slurm_cluster.env(),
-                              cwd=tmp_path).stdout.strip()
-
-    def wait_until(done, what: str) -> None:
-        while not done():
-            assert time.monotonic() < deadline, f"{what}; squeue: {slurm_cluster.queue()}"
-            time.sleep(0.5)
-
-    try:
-        job_id = submit("first.txt")
-        wait_until(lambda: all(log.exists() and "eval/score" in read_run(log).scalar_topics() for log in logs),
-                   "not every job logged an evaluation")
-        subprocess.run(["scancel", "--signal=USR1", "--batch", job_id], check=True, timeout=30)
-        wait_until(lambda: not _squeue(name), "the signalled batch job did not end")
-        assert "population launcher: SIGUSR1: the running populations stop" in (tmp_path / "first.txt").read_text()
-        for log in logs:
-            run = read_run(log)
-            assert run.complete and run.failure.startswith("stopped: SIGUSR1 at frame"), (log, run.failure)
-            stopped_at = torch.load(log.parent / "checkpoints" / "last.pt", weights_only=False)["state"]["frames"]
-            assert stopped_at < frames and stopped_at % steps == 0  # at an episode's end
-
-        submit("second.txt")
-        wait_until(lambda: not _squeue(name), "the resubmitted batch job did not end")
-        for log in logs:
-            run = read_run(log)
-            assert run.complete and run.failure is None, (log, run.failure)
-            assert torch.load(log.parent / "checkpoints" / "last.pt", weights_only=False)["state"]["frames"] == frames
-    finally:
-        subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
 
 
 def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at_its_time_limit(slurm_cluster,
