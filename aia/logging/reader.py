@@ -22,11 +22,12 @@ from typing import Any
 
 import numpy as np
 import yaml
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, DataEnd, Metadata, Schema
-from mcap.stream_reader import CRCValidationError, get_chunk_data_stream
+from mcap.records import Attachment, Channel, DataEnd, Metadata, Schema
+from mcap.stream_reader import CRCValidationError
 
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA
@@ -208,11 +209,12 @@ def _read_file(path: Path) -> RunLog:
 
 def _read_records(path: Path, data: bytes) -> RunLog:
     """The run in ``data`` (a whole file), read in one pass over its records as ``mcap``'s ``StreamReader``
-    with CRC checks reads them, but with the hot records parsed here: a message's fixed header is one
-    ``struct`` unpack and the message indexes are skipped by their length. Schemas, channels, chunks, metadata
-    and attachments (a few per file) are parsed by ``mcap``'s record classes, chunks decompressed and
-    CRC-checked by ``mcap``. The same runs as ``StreamReader``'s records give, in 7 us a message instead of
-    15 (580 logs of tests and a 20-seed protocol, 137k messages: 0.95 s against 2.05 s)."""
+    with CRC checks reads them, but with the hot records parsed here: a message's and a chunk's fixed header by
+    one ``struct`` unpack, the message indexes skipped by their length, chunks decompressed by one reused zstd
+    decompressor (a run of 200 episodes writes about 360 chunks, one per flush) and CRC-checked. Schemas,
+    channels, metadata and attachments (a few per file) are parsed by ``mcap``'s record classes. The same runs
+    as ``StreamReader``'s records give, in 4.0 us a message instead of 8.9 (780 logs of tests and a 20-seed
+    protocol, 1.6 M messages: 6.4 s against 14.1 s)."""
     run = RunLog(path, messages=[], complete=False)
     walk = _RecordWalk(run)
     try:
@@ -240,6 +242,9 @@ def _read_records(path: Path, data: bytes) -> RunLog:
 _RECORD_HEAD = struct.Struct("<BQ")        # opcode, body length
 _MESSAGE_HEAD = struct.Struct("<HIQQ")     # channel id, sequence, log time, publish time
 _DATA_END = struct.Struct("<I")            # the data section's CRC-32
+_CHUNK_HEAD = struct.Struct("<QQQI")      # first and last log time, uncompressed size, uncompressed CRC-32
+_U32, _U64 = struct.Struct("<I"), struct.Struct("<Q")
+_ZSTD = zstandard.ZstdDecompressor()
 
 
 class _RecordWalk:
@@ -260,7 +265,7 @@ class _RecordWalk:
             if opcode == Opcode.MESSAGE:
                 self._message(data, body, end, run.messages)
             elif opcode == Opcode.CHUNK:
-                self._chunk(Chunk.read(_stream(data, body, end)))
+                self._chunk(data, body, end)
             elif opcode == Opcode.METADATA:
                 record = Metadata.read(_stream(data, body, end))
                 run.metadata[record.name] = dict(record.metadata)
@@ -281,24 +286,26 @@ class _RecordWalk:
                 self._definition(opcode, data, body, end)
             position = end
 
-    def _chunk(self, chunk: Chunk) -> None:
+    def _chunk(self, data: bytes, body: int, end: int) -> None:
         """A chunk's messages, schemas and channels; a chunk that fails its CRC or decompression is skipped and
         described in the run's damage."""
         self.chunks += 1
+        logged, size, crc, compression, records = _chunk_fields(data, body, end)
         messages: list[LoggedMessage] = []
         try:
-            stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-            inner = stream.read(size)
+            inner = _decompress(compression, records, size)
+            if crc != 0 and zlib.crc32(inner) != crc:
+                raise CRCValidationError(expected=crc, actual=zlib.crc32(inner), record=None)
             position = 0
-            while position < size:
-                opcode, body, end = _record(inner, position)
+            while position < len(inner):
+                opcode, record_body, record_end = _record(inner, position)
                 if opcode == Opcode.MESSAGE:
-                    self._message(inner, body, end, messages)
+                    self._message(inner, record_body, record_end, messages)
                 else:
-                    self._definition(opcode, inner, body, end)
-                position = end
+                    self._definition(opcode, inner, record_body, record_end)
+                position = record_end
         except Exception as err:  # noqa: BLE001  (a bad CRC or a broken compression: skip the chunk)
-            self.run.damage.append(_damaged_chunk(self.chunks, chunk, err))
+            self.run.damage.append(_damaged_chunk(self.chunks, logged, err))
             return
         self.run.messages.extend(messages)
 
@@ -329,6 +336,34 @@ def _record(data: bytes, position: int) -> tuple[int, int, int]:
     return opcode, body, body + length
 
 
+def _chunk_fields(data: bytes, body: int, end: int) -> tuple[tuple[int, int], int, int, str, bytes]:
+    """``((start, end) log times, uncompressed size, uncompressed CRC-32, compression, compressed records)`` of
+    the chunk record whose body spans ``data[body:end]`` (MCAP's Chunk layout; EndOfFile if it overruns)."""
+    start, stop, size, crc = _CHUNK_HEAD.unpack_from(data, body)
+    position = body + _CHUNK_HEAD.size
+    (length,) = _U32.unpack_from(data, position)
+    compression = data[position + 4:position + 4 + length].decode()
+    position += 4 + length
+    (length,) = _U64.unpack_from(data, position)
+    position += 8
+    if position + length > end:
+        raise EndOfFile()
+    return (start, stop), size, crc, compression, data[position:position + length]
+
+
+def _decompress(compression: str, records: bytes, size: int) -> bytes:
+    """A chunk's records, decompressed (``zstd`` by one reused decompressor, ``lz4`` or none)."""
+    if compression == "zstd":
+        return _ZSTD.decompress(records, max_output_size=size)
+    if compression == "lz4":
+        import lz4.frame
+
+        return lz4.frame.decompress(records)
+    if compression:
+        raise ValueError(f"unknown chunk compression {compression!r}")
+    return records
+
+
 def _stream(data: bytes, body: int, end: int) -> ReadDataStream:
     return ReadDataStream(BytesIO(data[body:end]))
 
@@ -336,10 +371,9 @@ def _stream(data: bytes, body: int, end: int) -> ReadDataStream:
 _MAGIC = b"\x89MCAP0\r\n"
 
 
-def _damaged_chunk(number: int, chunk: Chunk, error: Exception) -> str:
+def _damaged_chunk(number: int, logged_ns: tuple[int, int], error: Exception) -> str:
     """``"chunk 3 (logged 09:40:01 -> 09:40:05) fails its CRC-32 check: its messages are skipped"``."""
-    logged = " -> ".join(time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ns / 1e9))
-                         for ns in (chunk.message_start_time, chunk.message_end_time))
+    logged = " -> ".join(time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ns / 1e9)) for ns in logged_ns)
     what = ("fails its CRC-32 check" if isinstance(error, CRCValidationError)
             else f"cannot be decompressed ({type(error).__name__})")
     return f"chunk {number} (logged {logged}) {what}: its messages are skipped"
