@@ -183,28 +183,32 @@ def _check_episodes(episodes: int) -> None:
 @hydra_app("aia-eval", config_name="eval", population="aia.apps.evaluate.evaluate_jobs")  # bad input: exit 2
 def main(cfg: DictConfig) -> float:
     """Entry point of ``aia-eval``; returns the score mean."""
-    overrides = HydraConfig.get().overrides.task
-    _validate(cfg, overrides)
-    return run_jobs([cfg], [Path(HydraConfig.get().runtime.output_dir)], [checkpoint_setting(cfg, overrides)])[0]
+    setting = _validate(cfg, HydraConfig.get().overrides.task)
+    return run_jobs([cfg], [Path(HydraConfig.get().runtime.output_dir)], [setting])[0]
 
 
-def _validate(cfg: DictConfig, overrides: Sequence[str]) -> None:
+def _validate(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig | None:
     """:func:`~aia.config.validation.validate_eval_config`, and a checkpoint's setting checked
-    (:func:`check_setting`) before any run log is written."""
+    (:func:`check_setting`) before any run log is written; returns that setting (:func:`checkpoint_setting`)."""
     validate_eval_config(cfg, overrides)
     setting = checkpoint_setting(cfg, overrides)
     if setting is not None:
         check_setting(cfg.checkpoint, setting)
+    return setting
 
 
 def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[float | Exception]:
     """The population launcher's task (``hydra/launcher=population``): the jobs' configs, which differ only
     in ``seed``, evaluated together by :func:`run_jobs`, job ``k`` writing to ``out_dirs[k]``; each job's score
     mean, or the error that stopped it (an invalid config fails its own job only: the others run without it)."""
-    return run_valid_jobs("aia-eval", cfgs, lambda k, cfg: _validate(cfg, _job_overrides(out_dirs[k])),
+    settings: dict[int, DictConfig | None] = {}  # each valid job's setting, as its validation found it
+
+    def validate(k: int, cfg: DictConfig) -> None:
+        settings[k] = _validate(cfg, _job_overrides(out_dirs[k]))
+
+    return run_valid_jobs("aia-eval", cfgs, validate,
                           lambda valid: run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid],
-                                                 [checkpoint_setting(cfgs[i], _job_overrides(out_dirs[i]))
-                                                  for i in valid]))
+                                                 [settings[i] for i in valid]))
 
 
 def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path],
