@@ -294,8 +294,9 @@ class _RecordWalk:
         messages: list[LoggedMessage] = []
         try:
             inner = _decompress(compression, records, size)
-            if crc != 0 and zlib.crc32(inner) != crc:
-                raise CRCValidationError(expected=crc, actual=zlib.crc32(inner), record=None)
+            actual = zlib.crc32(inner) if crc != 0 else 0
+            if actual != crc:
+                raise CRCValidationError(expected=crc, actual=actual, record=None)
             position = 0
             while position < len(inner):
                 opcode, record_body, record_end = _record(inner, position)
