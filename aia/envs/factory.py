@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from contextlib import nullcontext
 from importlib import resources
 from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_module
-from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -17,6 +14,7 @@ from torchrl.envs import Compose
 
 import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's ConfigStore)
 from aia.config.checks import check_choice
+from aia.config.composing import compose_config
 from aia.config.errors import ConfigError, one_line
 from aia.envs.config import TrackingConfig
 from aia.envs.sensing import Geometry
@@ -35,14 +33,8 @@ def load_env_config(setting: str = "empty1", overrides: Sequence[str] = ()) -> T
     """Compose the preset ``setting`` with Hydra-style ``overrides`` (``"sensor.range=12"``) into a config."""
     check_choice("env", setting, available_settings())
     hydra_overrides = [f"env={setting}", *(f"env.{o}" for o in overrides)]
-    context = (
-        nullcontext()
-        if GlobalHydra.instance().is_initialized()
-        else initialize_config_module(config_module="aia.conf", version_base="1.3")
-    )
     try:
-        with context:
-            cfg = compose(config_name="env_setting", overrides=hydra_overrides)
+        cfg = compose_config("env_setting", hydra_overrides)
     except (HydraException, OmegaConfBaseException) as err:
         raise ConfigError("overrides", list(overrides), f"overrides of env fields ({one_line(err)})") from None
     return to_tracking_config(cfg.env)

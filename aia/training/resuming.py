@@ -14,15 +14,13 @@ written matches when the run leaves it at its default, so that a run continues a
 from __future__ import annotations
 
 import functools
-from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_module
-from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
+from aia.config.composing import compose_config
 from aia.config.errors import ConfigError
 from aia.config.schemas import TrainConfig, keys_where
 from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
@@ -134,11 +132,7 @@ def _default_settings() -> dict[str, object]:
     env's keys from the env schema (:class:`~aia.envs.config.TrackingConfig`) rather than the default preset."""
     from aia.envs.config import TrackingConfig
 
-    context = (nullcontext() if GlobalHydra.instance().is_initialized()
-               else initialize_config_module(config_module="aia.conf", version_base="1.3"))
-    with context:
-        train = compose(config_name="train")
-    defaults = {k: v for k, v in flat_settings(train).items() if not k.startswith("env.")}
+    defaults = {k: v for k, v in flat_settings(compose_config("train")).items() if not k.startswith("env.")}
     env = flat_settings(OmegaConf.structured(TrackingConfig))
     return defaults | {f"env.{key}": value for key, value in env.items()}
 
