@@ -25,8 +25,8 @@ from tensordict import TensorDict, TensorDictBase
 
 from aia.envs.factory import make_env
 from aia.envs.render import render_frame
+from aia.modules.q_networks import MAP_KEY, OBSERVATION_KEY
 
-_FEATURES_KEY, _MAP_KEY = "observation", "local_map"
 # (map, number of targets) of the four paper settings.
 _PAPER_SETTINGS = {
     ("empty", 1): "empty1",
@@ -180,7 +180,7 @@ class TargetTrackingGymEnv(gymnasium.Env):
 
         if isinstance(self.observation_space, spaces.Dict):
             return {key: value(key) for key in self.observation_space.spaces}
-        return value(_FEATURES_KEY)
+        return value(OBSERVATION_KEY)
 
     def _info(self) -> dict[str, Any]:
         state = self._state
@@ -201,6 +201,6 @@ def _observation_space(observation_spec) -> spaces.Box | spaces.Dict:
         low, high = (bound[0].cpu().numpy().astype(np.float32) for bound in (spec.space.low, spec.space.high))
         return spaces.Box(low=low, high=high, dtype=np.float32)
 
-    if _MAP_KEY in observation_spec.keys():  # noqa: SIM118 (a Composite has no `in`)
-        return spaces.Dict({_FEATURES_KEY: box(_FEATURES_KEY), _MAP_KEY: box(_MAP_KEY)})
-    return box(_FEATURES_KEY)
+    if MAP_KEY in observation_spec.keys():  # noqa: SIM118 (a Composite has no `in`)
+        return spaces.Dict({OBSERVATION_KEY: box(OBSERVATION_KEY), MAP_KEY: box(MAP_KEY)})
+    return box(OBSERVATION_KEY)
