@@ -212,18 +212,18 @@ figures() {
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
     --out "$FIGURES/${setting}_trajectory.png"
 }
-running=0 failed=0
 if [[ -n "${RUN_PHASE[figures]:-}" ]]; then
   phase "figures: Fig. 2 curves, results tables and Fig. 3-style trajectories, $JOBS settings at a time"
+  running=0 failed=0
+  for setting in $SETTINGS; do
+    figures "$setting" > "$FIGURES/$setting.log" 2>&1 &
+    running=$(( running + 1 ))
+    if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
+  done
+  while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
+  for setting in $SETTINGS; do echo "-- $setting"; cat "$FIGURES/$setting.log"; done
+  if (( failed )); then echo "a setting's figures failed (its output above)" >&2; exit 1; fi
 fi
-for setting in ${RUN_PHASE[figures]:+$SETTINGS}; do
-  figures "$setting" > "$FIGURES/$setting.log" 2>&1 &
-  running=$(( running + 1 ))
-  if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
-done
-while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
-for setting in ${RUN_PHASE[figures]:+$SETTINGS}; do echo "-- $setting"; cat "$FIGURES/$setting.log"; done
-if (( failed )); then echo "a setting's figures failed (its output above)" >&2; exit 1; fi
 phase ""
 machine_speed end
 echo "done in $(( $(date +%s) - start )) s (each phase's in $OUT/wall_time.tsv); figures and tables in $FIGURES"
