@@ -57,7 +57,8 @@ class LocalMap(Transform):
     def __init__(self, geometry: Geometry, layout: str = "occupancy", im_size: int = 28, dt: float = 0.5,
                  ray_spacing: float = 0.05, out_key: str = LOCAL_MAP_KEY, compile: bool = False) -> None:
         if LOCAL_MAP_CHANNELS.get(layout, 0) == 0:
-            raise ValueError(f"layout={layout!r} is not one of ['occupancy', 'occupancy_visits']")
+            layouts = [name for name, channels in LOCAL_MAP_CHANNELS.items() if channels]
+            raise ValueError(f"layout={layout!r} is not one of {layouts}")
         super().__init__(in_keys=["robot_pose"], out_keys=[out_key])
         self.geometry = geometry
         self.channels = LOCAL_MAP_CHANNELS[layout]
