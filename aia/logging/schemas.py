@@ -27,6 +27,7 @@ NUMBER: dict[str, Any] = {"type": "number"}
 INTEGER: dict[str, Any] = {"type": "integer"}
 STRING: dict[str, Any] = {"type": "string"}
 BOOLEAN: dict[str, Any] = {"type": "boolean"}
+_BASE64: dict[str, Any] = {"type": "string", "contentEncoding": "base64"}  # bytes, as JSON carries them
 
 
 def _object(title: str | None = None, **properties: dict[str, Any]) -> dict[str, Any]:
@@ -78,13 +79,13 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                  level=_enum("foxglove.LogLevel", "UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL"),
                  message=STRING, name=STRING, file=STRING, line=INTEGER),
     COMPRESSED_IMAGE: _object(COMPRESSED_IMAGE, timestamp=_TIME, frame_id=STRING,
-                              data={"type": "string", "contentEncoding": "base64"}, format=STRING),
+                              data=_BASE64, format=STRING),
     POINT_CLOUD: _object(POINT_CLOUD, timestamp=_TIME, frame_id=STRING, pose=_POSE, point_stride=INTEGER,
                          fields=_array(_object("foxglove.PackedElementField", name=STRING, offset=INTEGER,
                                                type=_enum("foxglove.NumericType", "UNKNOWN", "UINT8", "INT8",
                                                           "UINT16", "INT16", "UINT32", "INT32", "FLOAT32",
                                                           "FLOAT64"))),
-                         data={"type": "string", "contentEncoding": "base64"}),
+                         data=_BASE64),
     SCALAR: _object(SCALAR, frame=INTEGER, value=NUMBER),
     HISTOGRAM: _object(HISTOGRAM, frame=INTEGER, edges=_array(NUMBER), counts=_array(NUMBER)),
 }
