@@ -29,7 +29,6 @@ obstacles); new maps for 4,096 worlds, the draws included, 0.28 CPU seconds over
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -39,6 +38,7 @@ from torch import Tensor
 from aia import rng
 from aia.config.errors import ConfigError
 from aia.envs.maps import RANDOM_SHAPES
+from aia.runtime.cpu_threads import in_shares
 
 # The uniforms one obstacle takes: shape, centre x and y, angle, length, second length, width.
 _OBSTACLE_DRAWS = 7
@@ -92,9 +92,8 @@ class RandomObstacles:
 def _in_threads(u: np.ndarray, rows: np.ndarray, shape_args: tuple) -> np.ndarray:
     """:func:`_layouts` of the draws ``u`` into ``rows``, in torch's CPU threads, each a share of the worlds (the
     kernel releases the GIL); each layout's number of start cells."""
-    parts = np.array_split(np.arange(rows.shape[0]), max(1, min(torch.get_num_threads(), rows.shape[0])))
-    with ThreadPoolExecutor(len(parts)) as pool:
-        return np.concatenate(list(pool.map(lambda part: _layouts(u[part], rows[part], *shape_args), parts)))
+    return np.concatenate(in_shares(lambda start, stop: _layouts(u[start:stop], rows[start:stop], *shape_args),
+                                    rows.shape[0]))
 
 
 def start_cells(occupancy: Tensor, resolution: float, margin: float) -> Tensor:

@@ -19,7 +19,8 @@ Two geometries answer the same queries with the same definitions:
   save (the collision grids of 4,096 maps of 181 x 181 cells are 2.1 GB, the ray tables 16 MB and about a
   second to build a map: over an hour per episode of 4,096 worlds), so it computes the same values from the
   occupancy when asked: the collision test of the fine cell a point falls
-  in, and the ray table's entries along the bins in view. Each result equals :class:`MapGeometry`'s on the
+  in, and the ray table's entries along the bins in view (on the CPU walked ray by ray,
+  :mod:`aia.envs.ray_walk`). Each result equals :class:`MapGeometry`'s on the
   world's own map (``tests/envs/test_sensing.py``).
 """
 
@@ -37,6 +38,7 @@ from torch import Tensor
 from aia.envs.belief import range_bearing
 from aia.envs.dynamics import wrap_angle
 from aia.envs.maps import GridMap, load_map
+from aia.envs.ray_walk import RayWalk
 
 if TYPE_CHECKING:
     from aia.envs.map_generator import RandomObstacles
@@ -93,9 +95,11 @@ class Geometry(ABC):
         """Whether the map cells at flat indices ``index`` (into each world's own grid) are occupied."""
 
     @abstractmethod
-    def _obstacle_hits(self, pose: Tensor, bins: Tensor) -> Tensor:
-        """``[..., F]`` the distance along each bin's ray from the centre of the robot's cell to the first
-        occupied cell (``inf``: none within the sensor range; leaving the grid is a hit)."""
+    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
+        """``[..., F]`` the smaller of ``bound [..., F]`` and the distance along each bin's ray from the centre of
+        the robot's cell to the first occupied cell (none within the sensor range: ``bound``; leaving the grid is
+        a hit). A geometry may leave a ray whose first hit lies beyond the minimum over ``[..., F]`` at its
+        ``bound``: the minimum and its first index are what :meth:`closest_obstacle` reads."""
 
     # ------------------------------------------------------------------ cells
     @staticmethod
@@ -148,7 +152,7 @@ class Geometry(ABC):
         angles = bins.to(self.dtype) * self.bin_width
         distance = self._wall_distance(pose[..., :2], angles)
         if self.has_obstacles:
-            distance = torch.minimum(distance, self._obstacle_hits(pose, bins))
+            distance = self._obstacle_hits(pose, bins, distance)
         best, arg = distance.min(-1)
         bearing = wrap_angle(torch.gather(angles, -1, arg.unsqueeze(-1)).squeeze(-1) - pose[..., 2])
         seen = best <= self.sensor_range
@@ -210,9 +214,9 @@ class MapGeometry(Geometry):
     def occupied(self, index: Tensor) -> Tensor:
         return self.occupancy.flatten()[index]
 
-    def _obstacle_hits(self, pose: Tensor, bins: Tensor) -> Tensor:
+    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
         cell = self._cell_index(pose[..., :2], self.resolution, self.shape)
-        return self.ray_table[cell.unsqueeze(-1), bins]
+        return torch.minimum(bound, self.ray_table[cell.unsqueeze(-1), bins])
 
     def in_collision(self, xy: Tensor) -> Tensor:
         """Whether each position ``[..., 2]`` is within ``margin`` of the bounds or of an occupied cell."""
@@ -269,7 +273,8 @@ class WorldMapGeometry(Geometry):
     The same results as :class:`MapGeometry` on each world's map, computed on demand: a collision is the test of
     the point's fine cell against the map cells within ``margin`` (``(2 ceil(margin / resolution) + 1)^2``
     gathers), the closest obstacle the ray table's entries of the bins in view (``fov_bins`` rays of about
-    ``2 range / resolution`` cells each). Episodes start in :attr:`start_cells`: the cells of each map whose
+    ``2 range / resolution`` cells each: gathered whole on a GPU, walked to their first hit on the CPU,
+    :class:`aia.envs.ray_walk.RayWalk`). Episodes start in :attr:`start_cells`: the cells of each map whose
     whole square is collision-free, in the largest 4-connected group of them
     (:func:`aia.envs.map_generator.start_cells`), so that every start can reach every other.
     ``nearest_obstacle`` (ttenv v1's detour rule) needs a table per map and is not offered.
@@ -292,6 +297,10 @@ class WorldMapGeometry(Geometry):
         cols, rows, distances = _ray_offsets(self.num_bins, resolution, sensor_range)
         self._ray_cols, self._ray_rows = cols.to(self.device), rows.to(self.device)
         self._ray_distances = distances.to(self.device, dtype)
+        # On the CPU the rays are walked (aia.envs.ray_walk; the figure against the gathers is in its docstring),
+        # elsewhere gathered whole.
+        self._walk = (RayWalk(num_worlds, self.shape, cols, rows, self._ray_distances)
+                      if self.device.type == "cpu" else None)
 
     def set_maps(self, worlds: Tensor, occupancy: Tensor, start_cells: Tensor, row_starts: Tensor | None = None
                  ) -> None:
@@ -303,6 +312,8 @@ class WorldMapGeometry(Geometry):
         self.start_cells[worlds] = start_cells.to(self.device)
         row_starts = start_cells.sum(-1) if row_starts is None else row_starts
         self._start_rows[worlds] = row_starts.to(self.device).cumsum(-1)
+        if self._walk is not None:
+            self._walk.update(self.occupancy, worlds)
 
     def draw_maps(self, worlds: Tensor, layouts: RandomObstacles, keys: Tensor) -> None:
         """New maps from ``layouts`` for the worlds ``worlds [K]``, whose episode keys are ``keys [K]``: on the CPU
@@ -313,6 +324,7 @@ class WorldMapGeometry(Geometry):
         row_starts = torch.empty_like(self._start_rows)
         layouts.generate(keys, worlds, (self.occupancy, self.start_cells, row_starts))
         self._start_rows[worlds] = row_starts[worlds].cumsum(-1)
+        self._walk.update(self.occupancy, worlds)
 
     def grid_map(self, world: int) -> GridMap:
         """World ``world``'s current map as a :class:`GridMap` (on the CPU), for rendering and recording."""
@@ -328,8 +340,14 @@ class WorldMapGeometry(Geometry):
     def _occupied_cells(self, row: Tensor, col: Tensor) -> Tensor:
         return self.occupied(row * self.shape[1] + col)
 
-    def _obstacle_hits(self, pose: Tensor, bins: Tensor) -> Tensor:
+    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
         row, col = self._cell_rows_cols(pose[..., :2], self.resolution, self.shape)
+        if self._walk is not None:
+            return self._walk.hits(self.occupancy, row, col, bins, bound)
+        return torch.minimum(bound, self._gathered_hits(row, col, bins))
+
+    def _gathered_hits(self, row: Tensor, col: Tensor, bins: Tensor) -> Tensor:
+        """``[B, F]`` every bin's first hit from cells ``(row [B], col [B])``, all of each ray's cells gathered."""
         rows = row[..., None, None] + self._ray_rows[bins]
         cols = col[..., None, None] + self._ray_cols[bins]
         (ny, nx), inside = self.shape, (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
