@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Reproduce the paper's comparison (SPEC 11): for each setting, DQN, Double DQN, ADFQ-egreedy and ADFQ-TS with
-# 5 seeds each, ARVI with 10 seeds, then the Fig. 2 curves, a results table, the statistics and verdicts of
+# 5 seeds each, ARVI with 10 seeds, then the Fig. 2 curves (from 4 seeds on, the IQM over runs with its bootstrap
+# CI band; with fewer, the mean +-1 std), a results table, the statistics and verdicts of
 # aia-log stats ($FIGURES/<setting>_stats.md, from 4 seeds per learner on) and a Fig. 3-style trajectory
 # picture of a learned ADFQ-TS policy. Everything is logged to MCAP under $OUT; each phase prints its wall time
 # and appends it to $OUT/wall_time.tsv, and the machine's float32 matmul rate at the start and at the end goes to
@@ -96,6 +97,10 @@ seed_list() {
   echo "${seeds[*]}"
 }
 SEED_LIST=$(seed_list SEEDS "$SEEDS")
+# The curves' bands: from 4 seeds per learner on (the IQM's least), the IQM over runs and its stratified-bootstrap
+# CI at each point, as the statistics' verdicts; with fewer, +-1 std over runs.
+BANDS=(--ci std)
+if (( $(tr ',' '\n' <<< "$SEED_LIST" | wc -l) >= 4 )); then BANDS=(--ci bootstrap); fi
 ARVI_SEED_LIST=$(seed_list ARVI_SEEDS "$ARVI_SEEDS")
 declare -A RUN_PHASE=()
 IFS=, read -r -a PHASE_LIST <<< "$PHASES"
@@ -194,7 +199,8 @@ figures() {
   done
   # shellcheck disable=SC2086  # WHERE holds several words on purpose
   aia-log plot "$OUT/$setting/learners" ${WHERE[$setting]} --group-by algo --group-by exploration --x episode \
-    --window 4 "${baselines[@]}" --title "$setting" --out "$FIGURES/$setting.png" | tee "$FIGURES/$setting.md"
+    --window 4 "${baselines[@]}" "${BANDS[@]}" --title "$setting" --out "$FIGURES/$setting.png" \
+    | tee "$FIGURES/$setting.md"
   # the verdicts (docs/RESULTS.md, "How verdicts are decided"): IQM and mean with bootstrap CIs, and per baseline
   # the probability of improvement, the difference, the verdict and the episode reaching it; at least 4 seeds
   # shellcheck disable=SC2086
@@ -206,9 +212,14 @@ figures() {
   config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
   if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; return; fi
   run=$(dirname "$(dirname "$config")")
-  # quoted: the run's folder name holds '=' and ',' (method=adfq_ts,seed=0), which Hydra's grammar reserves
-  aia-eval "checkpoint='$run/checkpoints/last.pt'" episodes=5 seed=0 threads=1 \
-    "hydra.run.dir=$OUT/$setting/trajectory"
+  # A trajectory evaluated from this checkpoint already (a second PHASES=figures) is drawn again as it is; one
+  # older than the checkpoint is evaluated again (run logs are never overwritten: its folder goes first).
+  if [[ ! "$OUT/$setting/trajectory/run.mcap" -nt "$run/checkpoints/last.pt" ]]; then
+    rm -rf "$OUT/$setting/trajectory"
+    # quoted: the run's folder name holds '=' and ',' (method=adfq_ts,seed=0), which Hydra's grammar reserves
+    aia-eval "checkpoint='$run/checkpoints/last.pt'" episodes=5 seed=0 threads=1 \
+      "hydra.run.dir=$OUT/$setting/trajectory"
+  fi
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
     --out "$FIGURES/${setting}_trajectory.png"
 }

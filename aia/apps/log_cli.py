@@ -43,9 +43,12 @@ from aia.logging.stats import (
     STATISTICS,
     VERDICT_BY,
     StatsConfig,
+    check_runs,
     curve_bands,
     describe,
     group_stats,
+    level_estimates,
+    levels_of,
     stats_json,
     stats_table,
 )
@@ -129,10 +132,12 @@ BASELINE_STYLES = ("--", ":", "-.")
 
 
 def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: int, x_axis: str, out: Path,
-         title: str | None = None, baselines: Sequence[Baseline] = (), bootstrap: StatsConfig | None = None) -> list:
+         title: str | None = None, baselines: Sequence[tuple[str, Sequence[RunLog]]] = (),
+         bootstrap: StatsConfig | None = None) -> list:
     """Draw the learning curves (mean line, +-1 std band; with ``bootstrap``, the config's statistic and its
     stratified-bootstrap CI band) of ``runs`` grouped by ``group_by`` into ``out``, with each of ``baselines``
-    (label, mean, std, count) as a horizontal line and band."""
+    (label, runs) as a horizontal line and band: the mean and +-1 std of all its values, or with ``bootstrap``
+    the statistic of its runs' levels and its CI (as ``aia-log stats`` gives them)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -141,18 +146,26 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     curves = learning_curves(runs, metric, group_by, window, x_axis)
     bands = curve_bands(runs, metric, group_by, window, x_axis, bootstrap) if bootstrap else []
     figure, axes = plt.subplots(figsize=(7, 4.5), dpi=120)
+    statistic = "IQM" if bootstrap and bootstrap.statistic == "iqm" else bootstrap and bootstrap.statistic
     for band in bands:
-        statistic = "IQM" if bootstrap.statistic == "iqm" else bootstrap.statistic
         line, = axes.plot(band.x, band.centre,
                           label=f"{band.label} ({band.runs} runs, {statistic} and {bootstrap.ci_level:.0%} CI)")
         axes.fill_between(band.x, band.low, band.high, color=line.get_color(), alpha=0.2)
     for curve in curves if not bands else ():
         line, = axes.plot(curve.x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
         axes.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, color=line.get_color(), alpha=0.2)
-    for k, (label, mean, std, count) in enumerate(baselines):
+    for k, (label, members) in enumerate(baselines):
         style = BASELINE_STYLES[k % len(BASELINE_STYLES)]
-        axes.axhline(mean, color="black", linestyle=style, label=f"{label} ({count} values)")
-        axes.axhspan(mean - std, mean + std, color="black", alpha=0.08)
+        if bootstrap:
+            check_runs(label, len(members), bootstrap)
+            estimate = level_estimates(levels_of(members, metric), bootstrap)[STATISTICS.index(bootstrap.statistic)]
+            centre, low, high = estimate.value, estimate.low, estimate.high
+            label = f"{label} ({len(members)} runs, {statistic} and {bootstrap.ci_level:.0%} CI)"
+        else:
+            mean, std, count = baseline_level(members, metric)
+            centre, low, high, label = mean, mean - std, mean + std, f"{label} ({count} values)"
+        axes.axhline(centre, color="black", linestyle=style, label=label)
+        axes.axhspan(low, high, color="black", alpha=0.08)
     axes.set_xlabel(X_LABELS[x_axis])
     axes.set_ylabel(metric + (f" (moving average of {window})" if window > 1 else ""))
     axes.set_title(title or metric)
@@ -208,13 +221,6 @@ def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[s
             raise ValueError(f"no {label} run in {group} matches --where {list(where)} and has {metric!r}")
         baselines.append((label, runs))
     return baselines
-
-
-def read_baselines(paths: Sequence[str], labels: Sequence[str], where: Sequence[str], metric: str
-                   ) -> list[Baseline]:
-    """The baselines of ``--baseline`` / ``--baseline-label`` (:func:`baseline_runs`) as (label, mean, std,
-    count) of their values."""
-    return [(label, *baseline_level(runs, metric)) for label, runs in baseline_runs(paths, labels, where, metric)]
 
 
 def action_view(points: np.ndarray, margin: float, limit: tuple[float, float]
@@ -459,9 +465,10 @@ def run_command(args: argparse.Namespace) -> None:
         if not runs:
             raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
         check_group_keys(runs, args.group_by)
-        baselines = read_baselines(args.baseline, args.baseline_label, args.where, args.metric)
-        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title, baselines,
-                      bootstrap)
+        baseline_groups = baseline_runs(args.baseline, args.baseline_label, args.where, args.metric)
+        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title,
+                      baseline_groups, bootstrap)
+        baselines = [(label, *baseline_level(members, args.metric)) for label, members in baseline_groups]
         for curve in curves:
             print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "
                   f"+- {curve.std[-1]:.1f}")

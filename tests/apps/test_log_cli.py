@@ -300,11 +300,32 @@ def test_stats_refuses_a_bad_group_key_too_few_runs_and_bad_options_in_one_line(
     assert "| seed=0 | 2 |" in capsys.readouterr().out
 
 
-def test_plot_with_bootstrap_bands(tmp_path, capsys):
+def test_plot_with_bootstrap_bands(tmp_path, capsys, monkeypatch):
+    """Curves and the baseline as the statistic with its CI; the baseline's line and band are aia-log stats' IQM
+    and CI of its runs' levels."""
+    import matplotlib.axes
+
     _stats_runs(tmp_path)
     out = tmp_path / "ci.png"
-    assert main(["plot", str(tmp_path / "m"), "--group-by", "algo", "--ci", "bootstrap", "--reps", "100",
+    drawn = {}
+    axhline, axhspan = matplotlib.axes.Axes.axhline, matplotlib.axes.Axes.axhspan
+
+    def line(self, y, **kw):
+        drawn["line"] = (y, kw["label"])
+        return axhline(self, y, **kw)
+
+    def band(self, low, high, **kw):
+        drawn["band"] = (low, high)
+        return axhspan(self, low, high, **kw)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "axhline", line)
+    monkeypatch.setattr(matplotlib.axes.Axes, "axhspan", band)
+    baseline = ["--baseline", str(tmp_path / "arvi"), "--baseline-label", "ARVI", "--reps", "100", "--seed", "3"]
+    assert main(["plot", str(tmp_path / "m"), "--group-by", "algo", "--ci", "bootstrap", *baseline,
                  "--out", str(out)]) == 0
     assert "algo=adfq: 5 runs" in capsys.readouterr().out and Image.open(out).format == "PNG"
+    assert main(["stats", str(tmp_path / "m"), "--group-by", "algo", *baseline, "--json"]) == 0
+    iqm = json.loads(capsys.readouterr().out)["baselines"][0]["iqm"]
+    assert drawn["line"] == (iqm["estimate"], "ARVI (4 runs, IQM and 95% CI)") and drawn["band"] == tuple(iqm["ci"])
     assert main(["plot", str(tmp_path / "m"), "--group-by", "seed", "--ci", "bootstrap", "--out", str(out)]) == 2
     assert "'seed=0' has 2 runs: --statistic iqm needs at least 4" in capsys.readouterr().err

@@ -60,6 +60,12 @@ def test_a_tiny_protocol_writes_runs_named_by_override_curves_table_and_trajecto
     speeds = dict(line.split("\t") for line in (tmp_path / "out" / "machine.tsv").read_text().splitlines())
     assert list(speeds) == ["sgemm_gflops_start", "sgemm_gflops_end"]
     assert all(float(gflops) > 0 for gflops in speeds.values())
+    # The figures drawn again from the same runs: the trajectory of the same checkpoint is not evaluated again.
+    trajectory = (setting / "trajectory" / "run.mcap").stat().st_mtime_ns
+    again = run_script(tmp_path, SETTINGS="small2", SEEDS="0", ARVI_MIN_RANGES="2", OUT="out", PHASES="figures")
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert (setting / "trajectory" / "run.mcap").stat().st_mtime_ns == trajectory
+    assert (figures / "small2.md").read_text() == table
 
 
 def test_an_unknown_setting_is_named(tmp_path):
