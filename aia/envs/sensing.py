@@ -26,6 +26,7 @@ Two geometries answer the same queries with the same definitions:
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 from abc import ABC, abstractmethod
@@ -100,6 +101,12 @@ class Geometry(ABC):
         the robot's cell to the first occupied cell (none within the sensor range: ``bound``; leaving the grid is
         a hit). A geometry may leave a ray whose first hit lies beyond the minimum over ``[..., F]`` at its
         ``bound``: the minimum and its first index are what :meth:`closest_obstacle` reads."""
+
+    def select(self, worlds: Tensor) -> Geometry:
+        """This geometry for queries whose leading dimension runs over ``worlds [K]`` (world indices in any
+        order, repeated or not; ARVI's tree nodes) for :meth:`in_collision`, :meth:`in_view` and
+        :meth:`line_of_sight`: the same geometry where every world shares one map."""
+        return self
 
     # ------------------------------------------------------------------ cells
     @staticmethod
@@ -325,6 +332,12 @@ class WorldMapGeometry(Geometry):
         layouts.generate(keys, worlds, (self.occupancy, self.start_cells, row_starts))
         self._start_rows[worlds] = row_starts[worlds].cumsum(-1)
         self._walk.update(self.occupancy, worlds)
+
+    def select(self, worlds: Tensor) -> WorldMapGeometry:
+        view = copy.copy(self)
+        view._world_base = worlds.to(self.device) * (self.shape[0] * self.shape[1])
+        view._walk = None  # the walk reads world q // (Q // B): the views' queries are gathered
+        return view
 
     def grid_map(self, world: int) -> GridMap:
         """World ``world``'s current map as a :class:`GridMap` (on the CPU), for rendering and recording."""

@@ -23,11 +23,12 @@ import numpy as np
 
 
 def expand(parents: np.ndarray, pose: np.ndarray, cov: np.ndarray, logdet: np.ndarray, cost: np.ndarray,
-           world: np.ndarray, positions: np.ndarray, arc_cos: np.ndarray, arc_sin: np.ndarray,
-           out: dict[str, np.ndarray], chord: np.ndarray, turn: np.ndarray, collision: np.ndarray, fine_cell: float,
-           size: tuple[float, float], occupancy: np.ndarray, obstacles: bool, resolution: float,
-           sight_fraction: np.ndarray, sensor_range: float, half_fov: float, min_range: float,
-           transition: np.ndarray, process_noise: np.ndarray, meas_noise: np.ndarray, log_det_cap: float) -> int:
+           world: np.ndarray, world_maps: np.ndarray, positions: np.ndarray, arc_cos: np.ndarray,
+           arc_sin: np.ndarray, out: dict[str, np.ndarray], chord: np.ndarray, turn: np.ndarray,
+           collision: np.ndarray, fine_cell: float, supersample: int, margin: float, size: tuple[float, float],
+           occupancy: np.ndarray, obstacles: bool, resolution: float, sight_fraction: np.ndarray,
+           sensor_range: float, half_fov: float, min_range: float, transition: np.ndarray,
+           process_noise: np.ndarray, meas_noise: np.ndarray, log_det_cap: float) -> int:
     """Write the collision-free children of ``parents`` (indices into the level's ``pose [n, 3]``, ``cov [n, N,
     4, 4]``, ``logdet [n, N]``, ``cost [n]``, ``world [n]``), parent by parent and action by action, to the
     first rows of ``out`` (an array per field of :class:`~aia.planners.tree.Level` but ``expanded``, a row per
@@ -35,13 +36,17 @@ def expand(parents: np.ndarray, pose: np.ndarray, cov: np.ndarray, logdet: np.nd
 
     ``arc_cos`` and ``arc_sin`` ``[P, A, K]`` are the cosines and sines of each parent's heading plus each
     primitive's half turn at the ``K`` checked points, ``chord`` and ``turn`` ``[A, K]`` the primitives'
-    chords and turns; ``positions [W, N, 2]`` the targets' predicted positions at the children's depth;
-    ``occupancy`` is read for lines of sight only where ``obstacles``.
+    chords and turns; ``positions [W, N, 2]`` the targets' predicted positions at the children's depth.
+    ``occupancy [M, ny, nx]`` holds the maps, world ``w`` planning on ``occupancy[world_maps[w]]``; it is read for
+    lines of sight only where ``obstacles``. A point collides by the fine ``collision`` grid of the one map
+    (``M = 1``), or, where that grid is empty (a map per world), by the margin test of
+    :func:`aia.envs.sensing._near_occupied` on the world's map: the same float64 arithmetic, the same answers.
     """
-    return _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin, chord, turn, collision,
-                   fine_cell, size[0], size[1], occupancy, obstacles, resolution, sight_fraction, sensor_range,
-                   half_fov, min_range, transition, process_noise, meas_noise, log_det_cap, out["pose"], out["cov"],
-                   out["logdet"], out["cost"], out["world"], out["parent"], out["action"])
+    return _expand(parents, pose, cov, logdet, cost, world, world_maps, positions, arc_cos, arc_sin, chord, turn,
+                   collision, fine_cell, supersample, margin, size[0], size[1], occupancy, obstacles, resolution,
+                   sight_fraction, sensor_range, half_fov, min_range, transition, process_noise, meas_noise,
+                   log_det_cap, out["pose"], out["cov"], out["logdet"], out["cost"], out["world"], out["parent"],
+                   out["action"])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -59,6 +64,36 @@ def _wrap(angle: float) -> float:  # pragma: no cover - compiled
     if mod != 0 and (mod < 0) != (period < 0):
         mod += period
     return mod - math.pi
+
+
+@numba.njit(cache=True, nogil=True)
+def _near_occupied(occupancy: np.ndarray, x: float, y: float, resolution: float, supersample: int,
+                   margin: float) -> bool:  # pragma: no cover - compiled
+    """:func:`aia.envs.sensing._near_occupied` for the point ``(x, y)`` on the map ``occupancy [ny, nx]``: whether
+    the centre of its fine cell lies within ``margin`` of the bounds or of an occupied cell's square."""
+    ny, nx = occupancy.shape
+    fine = resolution / supersample
+    fine_col = _cell(x, fine, nx * supersample)
+    fine_row = _cell(y, fine, ny * supersample)
+    px = (fine_col + 0.5) * fine
+    py = (fine_row + 0.5) * fine
+    if px < margin or px > nx * resolution - margin or py < margin or py > ny * resolution - margin:
+        return True
+    col = fine_col // supersample
+    row = fine_row // supersample
+    reach = math.ceil(margin / resolution)
+    for dr in range(-reach, reach + 1):
+        r = min(max(row + dr, 0), ny - 1)
+        y0 = r * resolution
+        dy = max(max(y0 - py, py - (y0 + resolution)), 0.0)
+        for dc in range(-reach, reach + 1):
+            c = min(max(col + dc, 0), nx - 1)
+            if occupancy[r, c]:
+                x0 = c * resolution
+                dx = max(max(x0 - px, px - (x0 + resolution)), 0.0)
+                if dx * dx + dy * dy < margin * margin:
+                    return True
+    return False
 
 
 @numba.njit(cache=True, nogil=True)
@@ -147,13 +182,14 @@ def _seen(x: float, y: float, heading: float, dx: float, dy: float, distance: fl
 
 
 @numba.njit(cache=True, nogil=True)
-def _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin, chord, turn, collision, fine_cell,
-            size_x, size_y, occupancy, obstacles, resolution, sight_fraction, sensor_range, half_fov, min_range,
-            transition, process_noise, meas_noise, log_det_cap, out_pose, out_cov, out_logdet, out_cost, out_world,
-            out_parent, out_action) -> int:  # pragma: no cover - compiled
+def _expand(parents, pose, cov, logdet, cost, world, world_maps, positions, arc_cos, arc_sin, chord, turn, collision,
+            fine_cell, supersample, margin, size_x, size_y, occupancy, obstacles, resolution, sight_fraction,
+            sensor_range, half_fov, min_range, transition, process_noise, meas_noise, log_det_cap, out_pose, out_cov,
+            out_logdet, out_cost, out_world, out_parent, out_action) -> int:  # pragma: no cover - compiled
     num_actions, checks = chord.shape
     targets = cov.shape[1]
     rows, columns = collision.shape
+    grid = rows > 0  # the one map's collision grid; else each world's margin test
     capped = log_det_cap < math.inf
     predicted = np.empty((targets, 4, 4))
     predicted_logdet = np.empty(targets)
@@ -177,15 +213,20 @@ def _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin
                 predicted[n] = cov[node, n]
                 predicted_logdet[n] = logdet[node, n]
         w = world[node]
+        world_map = occupancy[world_maps[w]]
         for action in range(num_actions):
             free = True
             x = y = 0.0
             for k in range(checks):
                 x = px + chord[action, k] * arc_cos[local, action, k]
                 y = py + chord[action, k] * arc_sin[local, action, k]
-                outside = x < 0 or y < 0 or x > size_x or y > size_y
-                if outside or collision[_cell(y, fine_cell, rows), _cell(x, fine_cell, columns)]:
+                if x < 0 or y < 0 or x > size_x or y > size_y:
                     free = False
+                elif grid:
+                    free = not collision[_cell(y, fine_cell, rows), _cell(x, fine_cell, columns)]
+                else:
+                    free = not _near_occupied(world_map, x, y, resolution, supersample, margin)
+                if not free:
                     break
             if not free:
                 continue
@@ -196,7 +237,7 @@ def _expand(parents, pose, cov, logdet, cost, world, positions, arc_cos, arc_sin
                 dx, dy = positions[w, n, 0] - x, positions[w, n, 1] - y
                 r2 = dx * dx + dy * dy  # range_bearing's and measurement_jacobian's, computed once
                 r = math.sqrt(r2)
-                if _seen(x, y, theta, dx, dy, r, occupancy, obstacles, resolution, sight_fraction, sensor_range,
+                if _seen(x, y, theta, dx, dy, r, world_map, obstacles, resolution, sight_fraction, sensor_range,
                          half_fov, min_range):
                     jacobian[0, 0], jacobian[0, 1] = dx / r, dy / r
                     jacobian[1, 0], jacobian[1, 1] = -dy / r2, dx / r2

@@ -12,7 +12,7 @@ from torch import Tensor
 from aia.config.checks import require
 from aia.envs import belief
 from aia.envs.filters import KalmanFilter
-from aia.envs.sensing import MapGeometry
+from aia.envs.sensing import Geometry
 from aia.envs.tracking import TargetTrackingEnv
 
 
@@ -25,28 +25,26 @@ class TrackingModel(NamedTuple):
     process_noise: Tensor  # [4, 4] W of the belief
     meas_noise: Tensor  # [2, 2] V
     log_det_cap: float  # the env's det cap (inf: none)
-    geometry: MapGeometry  # collision and the sensing rule (range, field of view, line of sight)
+    geometry: Geometry  # collision and the sensing rule (range, field of view, line of sight); a map per world
+    # when the env's worlds each have their own (WorldMapGeometry), the plans of a world on its map
 
     @classmethod
     def from_env(cls, env: TargetTrackingEnv) -> TrackingModel:
-        """The model of ``env`` (its very tensors, cast to float64). ARVI plans with the Kalman filter's
-        linear-Gaussian model on one map that every world shares: a setting whose beliefs another filter keeps,
-        or whose worlds each draw their own map, is refused in one line."""
+        """The model of ``env`` (its very tensors, cast to float64; its geometry, whose per-world maps a reset
+        replaces in place). ARVI plans with the Kalman filter's linear-Gaussian model: a setting whose beliefs
+        another filter keeps is refused in one line."""
         cfg, f64, kf = env.config, torch.float64, env.belief_filter
         require(isinstance(kf, KalmanFilter), "env.belief.filter", cfg.belief.filter,
                 "kf (ARVI plans with the Kalman filter's linear-Gaussian model; use a learned or heuristic "
                 "policy on this setting)")
-        require(isinstance(env.geometry, MapGeometry), "env.map", cfg.map,
-                "a map file (ARVI plans on one map that every world shares; use a learned or heuristic policy "
-                "on random maps)")
         return cls(env.primitives.to(f64), cfg.dt, kf.transition.to(f64), kf.model.noise.to(f64),
                    env.meas_noise.to(f64), kf.log_det_cap, env.geometry)
 
 
-def visible_targets(model: TrackingModel, pose: Tensor, positions: Tensor, min_range: float = 0.0) -> Tensor:
+def visible_targets(geometry: Geometry, pose: Tensor, positions: Tensor, min_range: float = 0.0) -> Tensor:
     """``[..., N]`` whether each target position ``[..., N, 2]`` is seen from ``pose [..., 3]``: the env's
-    sensing rule (:meth:`MapGeometry.in_view`, SPEC 4), and at least ``min_range`` away."""
-    visible, polar = model.geometry.in_view(pose, positions)
+    sensing rule (:meth:`Geometry.in_view`, SPEC 4), and at least ``min_range`` away."""
+    visible, polar = geometry.in_view(pose, positions)
     return visible & (polar[..., 0] >= min_range) if min_range > 0 else visible
 
 

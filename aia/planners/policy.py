@@ -60,12 +60,12 @@ class ARVIPolicy(TensorDictModuleBase):
     def _plan(self, worlds: Tensor, pose: Tensor, mean: Tensor, cov: Tensor) -> Tensor:
         """The ``[len(worlds), T]`` plans of ``worlds`` (one call, by budget group); kept in ``last``."""
         if self.groups is None:
-            self.last = [self.planner.plan(pose, mean, cov)]
+            self.last = [self.planner.plan(pose, mean, cov, worlds)]
             return self.last[0].actions
         if self.groups.shape != (self.plans.shape[0],):
             raise ValueError(f"groups has shape {list(self.groups.shape)}, the env {self.plans.shape[0]} worlds")
         _, groups = torch.unique(self.groups.to(worlds.device)[worlds], return_inverse=True)
-        self.last = self.planner.plan_groups(pose, mean, cov, groups)
+        self.last = self.planner.plan_groups(pose, mean, cov, groups, worlds)
         actions = torch.empty(worlds.numel(), self.plans.shape[1], dtype=torch.long, device=worlds.device)
         for group, result in enumerate(self.last):
             actions[groups == group] = result.actions

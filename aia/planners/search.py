@@ -50,19 +50,25 @@ class ARVIPlanner:
         self.model = TrackingModel.from_env(env)
         self.device = env.device
         self.expansion = Expansion(self.model, self.config.arc_checks, self.config.min_range)
-        self.map_size = (float(env.geometry.map.width), float(env.geometry.map.height))
+        geometry = env.geometry
+        self.map_size = (geometry.shape[1] * geometry.resolution, geometry.shape[0] * geometry.resolution)
         # each depth's node buffers, kept from call to call (see _Search.run)
         self.storage: list[dict[str, Tensor]] = []
 
-    def plan(self, pose: Tensor, mean: Tensor, cov: Tensor) -> PlanResult:
+    def plan(self, pose: Tensor, mean: Tensor, cov: Tensor, worlds: Tensor | None = None) -> PlanResult:
         """Plans from robot ``pose [W, 3]`` and beliefs ``mean [W, N, 4]``, ``cov [W, N, 4, 4]`` (one budget
-        group: ``max_nodes`` counts the nodes of all ``W`` worlds against ``W * max_nodes``)."""
-        return self.plan_groups(pose, mean, cov, torch.zeros(pose.shape[0], dtype=torch.long, device=pose.device))[0]
+        group: ``max_nodes`` counts the nodes of all ``W`` worlds against ``W * max_nodes``). ``worlds [W]``:
+        which of the env's worlds they are (default ``0 .. W - 1``), whose maps they plan on where the env's
+        worlds have maps of their own."""
+        zeros = torch.zeros(pose.shape[0], dtype=torch.long, device=pose.device)
+        return self.plan_groups(pose, mean, cov, zeros, worlds)[0]
 
-    def plan_groups(self, pose: Tensor, mean: Tensor, cov: Tensor, groups: Tensor) -> list[PlanResult]:
+    def plan_groups(self, pose: Tensor, mean: Tensor, cov: Tensor, groups: Tensor, worlds: Tensor | None = None
+                    ) -> list[PlanResult]:
         """Plans of several budget groups in one batch: ``groups [W]`` labels each world ``0 .. G - 1``
-        (every label used). Result ``g`` holds group ``g``'s worlds in ascending order and equals
-        :meth:`plan` of those worlds alone under a node or pass budget; the time budget is shared by the call."""
+        (every label used); ``worlds`` as in :meth:`plan`. Result ``g`` holds group ``g``'s worlds in ascending
+        order and equals :meth:`plan` of those worlds alone under a node or pass budget; the time budget is shared
+        by the call."""
         groups = torch.as_tensor(groups, device=pose.device)
         if (groups.shape != pose.shape[:1] or groups.dtype.is_floating_point or groups.dtype == torch.bool
                 or not torch.equal(groups.unique(), torch.arange(int(groups.max()) + 1, device=pose.device))):
@@ -72,7 +78,8 @@ class ARVIPlanner:
         # inference mode: a call is thousands of small ops, each a little cheaper without autograd's
         # bookkeeping (at one world 15-25 % of a call, 2026-12-02); the results leave it as plain tensors
         with torch.inference_mode():
-            plans = _Search(self, pose.to(f64), mean.to(f64), cov.to(f64), groups).run()
+            maps = torch.arange(pose.shape[0], device=pose.device) if worlds is None else worlds.to(pose.device)
+            plans = _Search(self, pose.to(f64), mean.to(f64), cov.to(f64), maps, groups).run()
         return [plan._replace(actions=plan.actions.clone(), cost=plan.cost.clone(), nodes=plan.nodes.clone())
                 for plan in plans]
 
@@ -80,9 +87,10 @@ class ARVIPlanner:
 class _Search:
     """One planning call: the tree, its per-level pruning state and the anytime loop, per budget group."""
 
-    def __init__(self, planner: ARVIPlanner, pose: Tensor, mean: Tensor, cov: Tensor,
+    def __init__(self, planner: ARVIPlanner, pose: Tensor, mean: Tensor, cov: Tensor, maps: Tensor,
                  groups: Tensor | None = None) -> None:
         self.planner, self.cfg = planner, planner.config
+        self.maps = maps  # [W] each planned world's world of the env (its map)
         self.start = time.perf_counter()
         num_worlds, device = pose.shape[0], pose.device
         self.num_worlds = num_worlds
@@ -204,7 +212,7 @@ class _Search:
             if start and self._out_of_time():
                 return None
             parents = fresh[start : start + chunk]
-            children = self.planner.expansion.extend(level, above, parents, self.positions[t])
+            children = self.planner.expansion.extend(level, above, parents, self.positions[t], self.maps)
             above.expanded[parents] = True
             self._count(children["world"])
         if timed and self._out_of_time():

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from aia.envs.dynamics import se2_step, unicycle_arc
+from aia.envs.sensing import WorldMapGeometry
 from aia.planners.model import TrackingModel, predict_cov, update_visible, visible_targets
 
 FIELDS = ("pose", "cov", "logdet", "cost", "world", "parent", "action", "expanded")
@@ -98,20 +100,23 @@ class Expansion:
         # what the CPU kernel reads of the model (made on first use): the arcs' half turns, and the rest
         self._kernel_constants: tuple[Tensor, dict] | None = None
 
-    def extend(self, below: Level, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
+    def extend(self, below: Level, level: Level, parents: Tensor, positions: Tensor, maps: Tensor
+               ) -> dict[str, Tensor]:
         """Append the collision-free children of ``parents`` (indices into ``level``), the targets predicted at
         ``positions [W, N, 2]``, to ``below``, parent by parent and action by action; returns them (a view per
-        field of :class:`Level` but ``expanded``). On the CPU (float64) one compiled kernel writes them into
-        ``below`` (:mod:`aia.planners.expansion_cpu`), elsewhere :meth:`children_tensors` makes them: the same
-        children."""
+        field of :class:`Level` but ``expanded``). ``maps [W]``: each planned world's world of the env, whose map
+        it plans on where the env's worlds have maps of their own. On the CPU (float64) one compiled kernel
+        writes them into ``below`` (:mod:`aia.planners.expansion_cpu`), elsewhere :meth:`children_tensors`
+        makes them: the same children."""
         if parents.device.type == "cpu" and level.cov.dtype == torch.float64:
             rows = below.reserve(parents.numel() * self.model.primitives.shape[0])
-            return below.commit(self._children_kernel(level, parents, positions, rows))
-        children = self.children_tensors(level, parents, positions)
+            return below.commit(self._children_kernel(level, parents, positions, maps, rows))
+        children = self.children_tensors(level, parents, positions, maps)
         below.append(children)
         return children
 
-    def _children_kernel(self, level: Level, parents: Tensor, positions: Tensor, out: dict[str, Tensor]) -> int:
+    def _children_kernel(self, level: Level, parents: Tensor, positions: Tensor, maps: Tensor,
+                         out: dict[str, Tensor]) -> int:
         """The kernel's children written to the first rows of ``out`` (a tensor per field but ``expanded``, a
         row per parent and action); returns how many."""
         from aia.planners.expansion_cpu import expand  # here: numba's import costs every command 0.3 s
@@ -121,21 +126,29 @@ class Expansion:
         half_turn, constants = self._kernel_constants
         # the arcs' cosines and sines as se2_step computes them (the same tensor ops: the same bits)
         heading = level.pose.index_select(0, parents)[:, None, None, 2] + half_turn
+        per_world = isinstance(self.model.geometry, WorldMapGeometry)
+        world_maps = maps.numpy() if per_world else np.zeros(maps.shape[0], dtype=np.int64)  # one map: map 0
         return expand(parents.numpy(), level.pose.numpy(), level.cov.numpy(), level.logdet.numpy(),
-                      level.cost.numpy(), level.world.numpy(), positions.contiguous().numpy(),
+                      level.cost.numpy(), level.world.numpy(), world_maps, positions.contiguous().numpy(),
                       torch.cos(heading).numpy(), torch.sin(heading).numpy(),
                       {name: value.numpy() for name, value in out.items()}, **constants)
 
     def _make_kernel_constants(self) -> tuple[Tensor, dict]:
-        """The arcs' half turns ``[A, K]`` and what else the CPU kernel reads of the model (numpy arrays, floats)."""
+        """The arcs' half turns ``[A, K]`` and what else the CPU kernel reads of the model (numpy arrays, floats;
+        the per-world maps as views of the env's buffers, which a reset rewrites in place)."""
         model, geometry = self.model, self.model.geometry
         half_turn, chord, turn = unicycle_arc(self.arc_velocity, model.dt)
         samples = math.ceil(2 * geometry.sensor_range / geometry.resolution) + 1
+        per_world = isinstance(geometry, WorldMapGeometry)
+        occupancy = geometry.occupancy if per_world else geometry.occupancy[None]
+        # per-world maps have no collision grid (a fine grid per world): the kernel tests the margin itself
+        collision = torch.zeros(0, 0, dtype=torch.bool) if per_world else geometry.collision
         return half_turn, {
             "chord": chord.numpy(), "turn": turn.numpy(),
-            "collision": geometry.collision.numpy(), "fine_cell": geometry.fine_cell,
+            "collision": collision.numpy(), "fine_cell": geometry.fine_cell,
+            "supersample": geometry.supersample, "margin": geometry.margin,
             "size": tuple(geometry.size.double().tolist()),
-            "occupancy": geometry.occupancy.numpy(), "obstacles": geometry.has_obstacles,
+            "occupancy": occupancy.numpy(), "obstacles": geometry.has_obstacles,
             "resolution": geometry.resolution,
             # line_of_sight's sample fractions, in the geometry's dtype as there
             "sight_fraction": torch.linspace(0.0, 1.0, samples, dtype=geometry.dtype).double().numpy(),
@@ -143,13 +156,14 @@ class Expansion:
             "transition": model.transition.numpy(), "process_noise": model.process_noise.numpy(),
             "meas_noise": model.meas_noise.numpy(), "log_det_cap": model.log_det_cap}
 
-    def children_tensors(self, level: Level, parents: Tensor, positions: Tensor) -> dict[str, Tensor]:
+    def children_tensors(self, level: Level, parents: Tensor, positions: Tensor, maps: Tensor
+                         ) -> dict[str, Tensor]:
         """:meth:`children` in tensor ops on any device (what a GPU runs)."""
-        model = self.model
+        model, geometry = self.model, self.model.geometry
         num_actions = model.primitives.shape[0]
         pose = level.pose.index_select(0, parents)
         arc = se2_step(pose[:, None, None, :], self.arc_velocity, model.dt)  # [P, A, K, 3]
-        free = ~model.geometry.in_collision(arc[..., :2]).any(-1)
+        free = ~geometry.select(maps[level.world.index_select(0, parents)]).in_collision(arc[..., :2]).any(-1)
         child = free.flatten().nonzero().squeeze(-1)  # index over (parent, action) pairs
         local, action = child // num_actions, child % num_actions
         parent = parents.index_select(0, local)
@@ -158,7 +172,7 @@ class Expansion:
         prior_logdet = level.logdet.index_select(0, parents)
         predicted, logdet = predict_cov(model, level.cov.index_select(0, parents), prior_logdet)
         target_xy = positions.index_select(0, world)
-        visible = visible_targets(model, child_pose, target_xy, self.min_range)
+        visible = visible_targets(geometry.select(maps[world]), child_pose, target_xy, self.min_range)
         cov, logdet = update_visible(model, predicted.index_select(0, local), logdet.index_select(0, local), child_pose,
                                      target_xy, visible)
         cost = level.cost.index_select(0, parent) + logdet.sum(-1)

@@ -11,8 +11,10 @@ from torchrl.envs import StepCounter
 from aia.config.errors import ConfigError
 from aia.envs import belief, make_env
 from aia.envs.dynamics import se2_step
+from aia.envs.sensing import MapGeometry
 from aia.evaluation import episode_scores, run_episodes
 from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy, model, pruning, search, to_arvi_config
+from aia.planners.tree import Expansion
 from aia.policies import RandomPolicy
 
 
@@ -90,7 +92,7 @@ def test_skipped_passes_change_nothing():
     env = make_env("empty1", transforms=False)
     pose, mean, cov = _scene()
     planner = ARVIPlanner(env, _config(max_passes=27))
-    schedule = search._Search(planner, pose.double(), mean.double(), cov.double())
+    schedule = search._Search(planner, pose.double(), mean.double(), cov.double(), torch.arange(1))
     schedule._next_pass = lambda k, group: k + 1  # the plain schedule: every pass runs
     plain = schedule.run()[0]
     fast = planner.plan(pose, mean, cov)
@@ -107,9 +109,9 @@ def test_a_time_budget_reads_the_clock_within_a_big_level(monkeypatch):
     expanded = []
     extend = search.Expansion.extend
 
-    def counting(self, below, level, parents, positions):
+    def counting(self, below, level, parents, positions, maps):
         expanded.append(parents.numel())
-        return extend(self, below, level, parents, positions)
+        return extend(self, below, level, parents, positions, maps)
 
     monkeypatch.setattr(search.Expansion, "extend", counting)
     monkeypatch.setattr(search, "_TIMED_CHUNK", 64)
@@ -155,7 +157,7 @@ def test_covariance_steps_equal_the_env_filter():
                                                  td["observed"])
         torch.testing.assert_close(step, td["belief_cov"], rtol=1e-12, atol=1e-12)
         assert torch.equal(step_logdet, belief.logdet(step))  # the log dets the tree keeps are the covariances'
-        visible = model.visible_targets(tracking, td["robot_pose"], td["target_state"][..., :2])
+        visible = model.visible_targets(tracking.geometry, td["robot_pose"], td["target_state"][..., :2])
         assert torch.equal(visible, td["observed"])
         seen = torch.cat((seen, td["observed"].flatten()))
     assert 0.05 < seen.float().mean() < 0.95  # both branches were exercised
@@ -282,9 +284,9 @@ def test_policy_replans_every_k_steps_and_after_resets():
     calls = []
     plan = policy.planner.plan
 
-    def spy(pose, mean, cov):
+    def spy(pose, mean, cov, worlds):
         calls.append(pose.shape[0])
-        policy_result = plan(pose, mean, cov)
+        policy_result = plan(pose, mean, cov, worlds)
         spy.actions.append(policy_result.actions)
         return policy_result
 
@@ -322,8 +324,8 @@ def test_min_range_hides_close_predicted_targets():
     tracking = model.TrackingModel.from_env(env)
     pose = torch.tensor([[50.0, 50.0, 0.0]])
     ahead = torch.tensor([[[51.0, 50.0], [55.0, 50.0], [45.0, 50.0]]])  # 1 m and 5 m ahead, 5 m behind
-    assert model.visible_targets(tracking, pose, ahead).tolist() == [[True, True, False]]
-    assert model.visible_targets(tracking, pose, ahead, min_range=2.0).tolist() == [[False, True, False]]
+    assert model.visible_targets(tracking.geometry, pose, ahead).tolist() == [[True, True, False]]
+    assert model.visible_targets(tracking.geometry, pose, ahead, min_range=2.0).tolist() == [[False, True, False]]
 
 
 def test_min_range_keeps_the_robot_off_the_belief_mean():
@@ -356,8 +358,28 @@ def test_bad_parameters_are_named():
     assert to_arvi_config({"horizon": 6, "eps": "inf"}) == ARVIConfig(horizon=6)
 
 
-def test_arvi_refuses_a_setting_without_a_kalman_filter_or_with_random_maps_in_one_line():
+def test_arvi_refuses_a_setting_without_a_kalman_filter_in_one_line():
     with pytest.raises(ConfigError, match=r"env.belief.filter='ukf': expected kf \(ARVI plans"):
         model.TrackingModel.from_env(make_env("ttenv_v2", transforms=False))
-    with pytest.raises(ConfigError, match=r"env.map='random_obstacles': expected a map file \(ARVI plans on one"):
-        model.TrackingModel.from_env(make_env("random_obstacles", batch_size=2, transforms=False))
+
+
+def test_on_per_world_maps_each_world_plans_as_on_its_own_map():
+    """Random maps: a world's plan (its own budget group) equals the plan on a fixed map that is its map, in any
+    order and subset of the env's worlds."""
+    env = make_env("random_obstacles", batch_size=3, seed=2, transforms=False)
+    td = env.reset()
+    config = _config(max_nodes=400, max_passes=None)
+    state = (td["robot_pose"], td["belief_mean"], td["belief_cov"])
+    worlds = torch.tensor([2, 0, 1])
+    together = ARVIPlanner(env, config).plan_groups(*(x[worlds] for x in state), torch.arange(3), worlds)
+    geometry, sensor = env.geometry, env.config.sensor
+    for group, world in enumerate(worlds.tolist()):
+        alone = ARVIPlanner(env, config)
+        fixed = MapGeometry(env.world_map(world), geometry.margin, geometry.sensor_range, geometry.fov,
+                            sensor.obstacle_ray_spacing, geometry.supersample)
+        alone.model = alone.model._replace(geometry=fixed)
+        alone.expansion = Expansion(alone.model, config.arc_checks, config.min_range)
+        expected = alone.plan(*(x[world : world + 1] for x in state))
+        assert torch.equal(together[group].actions, expected.actions)
+        assert torch.equal(together[group].nodes, expected.nodes) and together[group].cost == expected.cost
+    assert (torch.stack([plan.nodes for plan in together]) > 100).all()

@@ -28,15 +28,16 @@ def _states(setting: str, worlds: int, seed: int) -> tuple[torch.Tensor, torch.T
     ("empty1", {"min_range": 2.0}),  # the minimum range hides close targets
     ("obstacles1", {}),  # collisions with obstacles and lines of sight
     ("small3", {"eps": 0.5}),  # three targets
+    ("random_obstacles", {}),  # a map per world: the margin test instead of the collision grid
 ])
 def test_the_kernel_makes_the_children_of_the_tensor_ops(setting, overrides, monkeypatch):
     kernel = Expansion.extend
     seen = {"calls": 0, "children": 0, "dropped": 0, "updated": 0, "capped": 0}
 
-    def both(self, below, level, parents, positions):
+    def both(self, below, level, parents, positions, maps):
         before = below.size
-        made = kernel(self, below, level, parents, positions)
-        expected = self.children_tensors(level, parents, positions)
+        made = kernel(self, below, level, parents, positions, maps)
+        expected = self.children_tensors(level, parents, positions, maps)
         for name in ("pose", "world", "parent", "action"):
             assert torch.equal(made[name], expected[name]), name
             assert torch.equal(getattr(below, name)[before:], expected[name]), name  # appended to the level
@@ -52,13 +53,15 @@ def test_the_kernel_makes_the_children_of_the_tensor_ops(setting, overrides, mon
         return made
 
     monkeypatch.setattr(Expansion, "extend", both)
-    planner = ARVIPlanner(make_env(setting, transforms=False),
-                          ARVIConfig(time_budget=None, max_nodes=1500, **overrides))
-    planner.plan(*_states(setting, worlds=3, seed=5))
+    states = _states(setting, worlds=3, seed=5)
+    env = make_env(setting, batch_size=3, seed=5, transforms=False)
+    env.reset()  # the maps of _states' env, where each world has its own
+    planner = ARVIPlanner(env, ARVIConfig(time_budget=None, max_nodes=1500, **overrides))
+    planner.plan(*states)
     assert seen["calls"] > 10 and seen["children"] > 3 * 1500 * 0.9
     # every branch of the kernel was taken: collisions, Kalman updates, the det cap
     assert seen["updated"] > 0 and seen["capped"] > 0
-    assert seen["dropped"] > 0 or setting != "obstacles1"
+    assert seen["dropped"] > 0 or setting not in ("obstacles1", "random_obstacles")
 
 
 def test_a_planner_reusing_its_buffers_plans_as_a_fresh_one():

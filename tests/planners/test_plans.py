@@ -16,9 +16,9 @@ from aia.planners.tree import Expansion
 RECORDED = torch.load(Path(__file__).parent / "data" / "arvi_plans.pt", weights_only=True)
 
 
-def _extend_by_tensor_ops(self, below, level, parents, positions):
+def _extend_by_tensor_ops(self, below, level, parents, positions, maps):
     """:meth:`Expansion.extend` as it runs off the CPU: the children in tensor ops, appended."""
-    children = self.children_tensors(level, parents, positions)
+    children = self.children_tensors(level, parents, positions, maps)
     below.append(children)
     return children
 
