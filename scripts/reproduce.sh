@@ -47,6 +47,8 @@
 # Each run's folder is named by what varies (e.g. $OUT/empty1/learners/method=adfq_ts,seed=3), so a later call
 # with more seeds or methods adds runs next to the ones already there instead of overwriting them.
 set -euo pipefail
+# seed_list, parse_phases, machine_speed, phase
+source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
 SETTINGS=${SETTINGS:-"empty1 obstacles1 small2 small3"}
 SEEDS=${SEEDS:-0,1,2,3,4}
@@ -79,38 +81,13 @@ case "$LAUNCHER" in
     echo "LAUNCHER='$LAUNCHER': expected population or population_slurm" >&2
     exit 2 ;;
 esac
-# seed_list NAME VALUE: VALUE's seeds and ranges (0-19, 0-4,10) as a comma-separated list; exit 2 naming a bad one
-seed_list() {
-  local item seeds=() k
-  local IFS=,
-  for item in $2; do
-    if [[ "$item" =~ ^[0-9]+$ ]]; then
-      seeds+=("$((10#$item))")
-    elif [[ "$item" =~ ^([0-9]+)-([0-9]+)$ ]] && (( 10#${BASH_REMATCH[1]} <= 10#${BASH_REMATCH[2]} )); then
-      for (( k = 10#${BASH_REMATCH[1]}; k <= 10#${BASH_REMATCH[2]}; k++ )); do seeds+=("$k"); done
-    else
-      echo "$1='$2': '$item' is not a seed or a rising range; expected e.g. 0,1,2 or 0-19 or 0-4,10" >&2
-      exit 2
-    fi
-  done
-  if (( ${#seeds[@]} == 0 )); then echo "$1='$2': no seeds; expected e.g. 0,1,2 or 0-19 or 0-4,10" >&2; exit 2; fi
-  echo "${seeds[*]}"
-}
 SEED_LIST=$(seed_list SEEDS "$SEEDS")
 # The curves' bands: from 4 seeds per learner on (the IQM's least), the IQM over runs and its stratified-bootstrap
 # CI at each point, as the statistics' verdicts; with fewer, +-1 std over runs.
 BANDS=(--ci std)
 if (( $(tr ',' '\n' <<< "$SEED_LIST" | wc -l) >= 4 )); then BANDS=(--ci bootstrap); fi
 ARVI_SEED_LIST=$(seed_list ARVI_SEEDS "$ARVI_SEEDS")
-declare -A RUN_PHASE=()
-IFS=, read -r -a PHASE_LIST <<< "$PHASES"
-for item in "${PHASE_LIST[@]}"; do
-  case "$item" in
-    learners|arvi|figures) RUN_PHASE[$item]=1 ;;
-    *) echo "PHASES='$PHASES': '$item' is not a phase; expected some of learners,arvi,figures" >&2; exit 2 ;;
-  esac
-done
-if (( ${#RUN_PHASE[@]} == 0 )); then echo "PHASES='$PHASES': no phase; expected some of learners,arvi,figures" >&2; exit 2; fi
+parse_phases "$PHASES" learners arvi figures
 if [[ -n "${ARVI_NODES:-}" ]]; then
   ARVI_BUDGET_OVERRIDES=("planner.time_budget=null" "planner.max_nodes=$ARVI_NODES")
 else
@@ -127,29 +104,10 @@ declare -A WHERE=(
   [small3]="--where env.map=empty_small --where env.num_targets=3"
 )
 mkdir -p "$OUT" "$FIGURES"
-# machine_speed WHEN: record the machine's matmul rate now in $OUT/machine.tsv (nan if it cannot be measured)
-machine_speed() {
-  local gflops
-  gflops=$(python3 -m aia.runtime.timing 2>/dev/null || echo nan)
-  echo "-- machine: sgemm $gflops GFLOP/s ($1)"
-  printf 'sgemm_gflops_%s\t%s\n' "$1" "$gflops" >> "$OUT/machine.tsv"
-}
 machine_speed start
 start=$(date +%s)
 phase_name=""
 phase_start=$start
-# phase NAME: end the running phase, print and record its wall time in $OUT/wall_time.tsv, and start NAME
-phase() {
-  local now
-  now=$(date +%s)
-  if [[ -n "$phase_name" ]]; then
-    echo "-- $phase_name: $(( now - phase_start )) s"
-    printf '%s\t%s\n' "$phase_name" "$(( now - phase_start ))" >> "$OUT/wall_time.tsv"
-  fi
-  phase_name=$1
-  phase_start=$now
-  if [[ -n "$phase_name" ]]; then echo "== $phase_name"; fi
-}
 for setting in $SETTINGS; do
   if [[ -z "${WHERE[$setting]:-}" ]]; then
     echo "unknown setting '$setting': expected some of empty1 obstacles1 small2 small3" >&2

@@ -37,6 +37,8 @@ EXCLUDED = [
                            "README's test command exactly"),
     (r"(^|\s)scripts/reproduce\.sh$", "the paper's protocol (minutes to half an hour); tests/scripts/"
                                       "test_reproduce.py runs a small call of the script"),
+    (r"(^|\s)scripts/generalisation\.sh", "the generalisation protocol (minutes for its smoke run, hours in "
+                                          "full); tests/scripts/test_generalisation.py checks its input"),
     (r"^scripts/slurm_local\.sh ", "installs and starts a local SLURM (root, apt-get); tests/cluster/ run it"),
     (r"^(sinfo|squeue|sacct|sbatch|scancel)\b", "a SLURM client: tests/cluster/ use them on the local cluster"),
     (r"^(#!|#SBATCH|exec )", "a batch script's lines, for sbatch"),

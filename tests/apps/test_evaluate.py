@@ -162,6 +162,7 @@ def test_a_map_checkpoint_plays_on_another_map_of_its_layout_and_another_layout_
         assert len(written["scores"]) == 2 and np.isfinite(written["scores"]).all()
         run = read_run(tmp_path / name / "run.mcap")
         assert run.config_value("env.map") == name and run.config_value("env.features.im_size") == 8
+        assert run.config_value("trained_env.map") == "obstacles4"  # where the policy learned, to group by
     trained = "layout of the setting {} was trained in, observation [8]{}"
     maps, features = trained.format(map_checkpoint, ", local_map [1, 8, 8] ("), trained.format(checkpoint, " (")
     for path, overrides, words in (

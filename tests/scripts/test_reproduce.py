@@ -12,10 +12,10 @@ from PIL import Image
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce.sh"
 
 
-def run_script(cwd: Path, **env: str) -> subprocess.CompletedProcess:
-    """``bash scripts/reproduce.sh`` in ``cwd`` with this interpreter's console scripts first on PATH."""
+def run_script(cwd: Path, script: Path = SCRIPT, **env: str) -> subprocess.CompletedProcess:
+    """``bash script`` (scripts/reproduce.sh) in ``cwd`` with this interpreter's console scripts first on PATH."""
     path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
-    return subprocess.run(["bash", str(SCRIPT)], cwd=cwd, env={**os.environ, "PATH": path, **env},
+    return subprocess.run(["bash", str(script)], cwd=cwd, env={**os.environ, "PATH": path, **env},
                           capture_output=True, text=True, timeout=600)
 
 
@@ -75,9 +75,8 @@ def test_an_unknown_setting_is_named(tmp_path):
 
 
 def test_seed_ranges_expand_and_a_bad_one_is_named(tmp_path):
-    script = SCRIPT.read_text()
-    seed_list = script[script.index("seed_list() {"):script.index("\n}\n", script.index("seed_list() {")) + 3]
-    expanded = subprocess.run(["bash", "-c", seed_list + "seed_list SEEDS 0-3,7,10-12; seed_list SEEDS 0-19"],
+    library = SCRIPT.parent / "lib" / "protocol.sh"
+    expanded = subprocess.run(["bash", "-c", f"source {library}; seed_list SEEDS 0-3,7,10-12; seed_list SEEDS 0-19"],
                               capture_output=True, text=True, check=True).stdout.split()
     assert expanded == ["0,1,2,3,7,10,11,12", ",".join(map(str, range(20)))]
     for variable, value, bad in (("SEEDS", "5-2", "5-2"), ("ARVI_SEEDS", "0-4,x", "x")):

@@ -1,0 +1,135 @@
+#!/usr/bin/env bash
+# Generalisation to maps a policy never saw: DQN and ADFQ-TS learn on the paper's fixed obstacles4 map
+# (experiment=paper_obstacles1), on random maps (experiment=random_obstacles: a new obstacle layout per world and
+# episode) and on random maps with the local map image in the observation (env.features.local_map=occupancy, a
+# conv torso); then every learned policy plays EPISODES episodes on random maps drawn from a seed no training
+# used, and on obstacles4, beside ARVI on both. The tables ($OUT/tables/<map>.md) are aia-log stats of the
+# evaluations grouped by where each policy learned (trained_env.*) and by method, against ARVI.
+#
+#   scripts/generalisation.sh                              # 5 seeds per method and training setting
+#   SEEDS=0,1 FRAMES=600 EPISODES=4 ARVI_SEEDS=0,1 ARVI_NODES=300 scripts/generalisation.sh   # a smoke run
+#
+# Environment variables (defaults in brackets):
+#   SEEDS        learner seeds [0-4] (ranges as in scripts/reproduce.sh);  METHODS  learners [dqn,adfq_ts]
+#   TRAINED_ON   training settings [paper_obstacles1 random_obstacles random_obstacles_local_map]
+#   FRAMES       override of each experiment's training length [the experiment's: 200 training episodes]
+#   TRAIN_OVERRIDES  more aia-train overrides, space-separated []
+#   EPISODES     evaluation episodes per policy and map [100];  EVAL_SEED  their seed [1000]
+#   ARVI_SEEDS   ARVI seeds per map [0-4];  ARVI_EPISODES  episodes per ARVI seed [20]
+#   ARVI_NODES   ARVI's node budget per world and plan [25000];  ARVI_MIN_RANGE  planner.min_range [2]
+#   JOBS         processes in parallel [2];  OUT  output folder [outputs/generalisation]
+#   PHASES       which phases run [learners,evals,arvi,tables]
+#
+# Runs go to $OUT/learners/<trained on>/<method=...,seed=...>, their evaluations to
+# $OUT/evals/<map>/<trained on>/<method=...,seed=...> (an evaluation already written is kept: a stopped call
+# goes on where it stopped), ARVI to $OUT/arvi/<map>/seed=<seed>.
+set -euo pipefail
+# seed_list, parse_phases, machine_speed, phase
+source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
+
+SEEDS=${SEEDS:-0-4}
+METHODS=${METHODS:-dqn,adfq_ts}
+TRAINED_ON=${TRAINED_ON:-"paper_obstacles1 random_obstacles random_obstacles_local_map"}
+EPISODES=${EPISODES:-100}
+EVAL_SEED=${EVAL_SEED:-1000}
+ARVI_SEEDS=${ARVI_SEEDS:-0-4}
+ARVI_EPISODES=${ARVI_EPISODES:-20}
+ARVI_NODES=${ARVI_NODES:-25000}
+ARVI_MIN_RANGE=${ARVI_MIN_RANGE:-2}
+JOBS=${JOBS:-2}
+OUT=${OUT:-outputs/generalisation}
+PHASES=${PHASES:-learners,evals,arvi,tables}
+MAPS="random_obstacles obstacles4"
+
+SEED_LIST=$(seed_list SEEDS "$SEEDS")
+ARVI_SEED_LIST=$(seed_list ARVI_SEEDS "$ARVI_SEEDS")
+parse_phases "$PHASES" learners evals arvi tables
+# what each training setting adds to aia-train
+declare -A TRAINING=(
+  [paper_obstacles1]="experiment=paper_obstacles1"
+  [random_obstacles]="experiment=random_obstacles"
+  [random_obstacles_local_map]="experiment=random_obstacles env.features.local_map=occupancy"
+)
+for trained in $TRAINED_ON; do
+  if [[ -z "${TRAINING[$trained]:-}" ]]; then
+    echo "TRAINED_ON: unknown training setting '$trained'; expected some of ${!TRAINING[*]}" >&2
+    exit 2
+  fi
+done
+FRAMES_OVERRIDE=()
+if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
+read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
+
+mkdir -p "$OUT/tables"
+OUT_ABS=$(cd "$OUT" && pwd)
+machine_speed start
+start=$(date +%s)
+
+# One sweep per training setting: each method's seeds are one population, $JOBS populations at a time.
+for trained in ${RUN_PHASE[learners]:+$TRAINED_ON}; do
+  phase "learners on $trained: $METHODS x seeds $SEEDS, as populations"
+  read -r -a setting <<< "${TRAINING[$trained]}"
+  aia-train -m hydra/launcher=population "hydra.launcher.n_jobs=$JOBS" "${setting[@]}" "method=$METHODS" \
+    "seed=$SEED_LIST" threads=1 "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" \
+    "hydra.sweep.dir=$OUT/sweeps/learners_$trained" \
+    "hydra.sweep.subdir=$OUT_ABS/learners/$trained/\${hydra.job.override_dirname}" \
+    'hydra.job.config.override_dirname.exclude_keys=[experiment,env.features.local_map,threads,frames,device,resume,compile.update,compile.env,compile.policy]'
+done
+
+# evaluate CHECKPOINT MAP DIR: the policy's EPISODES episodes on MAP (env.map of its own setting), logged in DIR
+evaluate() {
+  # quoted: the run's folder names hold '=' and ',' (method=adfq_ts,seed=0), which Hydra's grammar reserves
+  aia-eval "checkpoint='$1'" "env.map=$2" "episodes=$EPISODES" "seed=$EVAL_SEED" threads=1 "hydra.run.dir='$3'" \
+    > "$3.log" 2>&1 || { cat "$3.log"; return 1; }
+}
+if [[ -n "${RUN_PHASE[evals]:-}" ]]; then
+  phase "evaluations: every learned policy on $MAPS, $EPISODES episodes each (seed $EVAL_SEED), $JOBS at a time"
+  running=0 failed=0
+  for trained in $TRAINED_ON; do
+    for checkpoint in "$OUT/learners/$trained"/*/checkpoints/last.pt; do
+      [[ -f "$checkpoint" ]] || continue
+      run=$(basename "$(dirname "$(dirname "$checkpoint")")")
+      for map in $MAPS; do
+        dir="$OUT/evals/$map/$trained/$run"
+        [[ -f "$dir/eval.json" ]] && continue  # written by an earlier call
+        mkdir -p "$(dirname "$dir")"
+        rm -rf "$dir"  # a stopped evaluation's partial log: run logs are never overwritten
+        evaluate "$checkpoint" "$map" "$dir" &
+        running=$(( running + 1 ))
+        if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
+      done
+    done
+  done
+  while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
+  if (( failed )); then echo "an evaluation failed (its output above)" >&2; exit 1; fi
+fi
+
+for map in ${RUN_PHASE[arvi]:+$MAPS}; do
+  phase "ARVI (min range $ARVI_MIN_RANGE m) on $map: seeds $ARVI_SEEDS, $ARVI_EPISODES episodes each"
+  env=$map
+  if [[ "$map" == obstacles4 ]]; then env=obstacles1; fi  # the paper's setting 2 is obstacles4
+  aia-eval -m hydra/launcher=population hydra.launcher.split_to_fill=true "hydra.launcher.n_jobs=$JOBS" \
+    policy=arvi "env=$env" "seed=$ARVI_SEED_LIST" "episodes=$ARVI_EPISODES" threads=1 \
+    "planner.min_range=$ARVI_MIN_RANGE" planner.time_budget=null "planner.max_nodes=$ARVI_NODES" \
+    "hydra.sweep.dir=$OUT/sweeps/arvi_$map" "hydra.sweep.subdir=$OUT_ABS/arvi/$map/\${hydra.job.override_dirname}" \
+    'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
+done
+
+if [[ -n "${RUN_PHASE[tables]:-}" ]]; then
+  phase "tables: the evaluations' statistics per map against ARVI"
+  for map in $MAPS; do
+    # at least 4 runs per group (the IQM's least): with fewer, the line that says so, and the script goes on
+    if aia-log stats "$OUT/evals/$map" --group-by trained_env.map --group-by trained_env.features.local_map \
+        --group-by algo --group-by exploration --baseline "$OUT/arvi/$map" \
+        --baseline-label "ARVI, min range $ARVI_MIN_RANGE m" > "$OUT/tables/$map.md"; then
+      echo "-- on $map"
+      cat "$OUT/tables/$map.md"
+    else
+      rm -f "$OUT/tables/$map.md"
+      echo "no table for $map: the line above says why"
+    fi
+  done
+fi
+phase ""
+machine_speed end
+echo "done in $(( $(date +%s) - start )) s (each phase's in $OUT/wall_time.tsv); tables in $OUT/tables"
