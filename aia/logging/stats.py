@@ -124,7 +124,7 @@ class Comparison:
     poi: Estimate               # P(a run of the group > a run of the baseline), ties counting half
     difference: Estimate        # statistic(group) - statistic(baseline)
     verdict: str                # above / below / undecided
-    reaching: Reaching
+    reaching: Reaching | None   # None where the runs hold one evaluation each (aia-eval's): no curve to reach along
 
 
 @dataclass
@@ -263,7 +263,7 @@ def compare(label: str, levels: np.ndarray, curves: np.ndarray, x: np.ndarray, b
     def at(index: float) -> float | None:
         return None if index >= end else float(x[int(index)])
 
-    reaching = Reaching(at(points[2]), at(math.floor(cis[0, 2])), at(math.ceil(cis[1, 2])))
+    reaching = Reaching(at(points[2]), at(math.floor(cis[0, 2])), at(math.ceil(cis[1, 2]))) if end > 1 else None
     return Comparison(baseline, poi, difference, verdict(decided, config.threshold), reaching)
 
 
@@ -373,20 +373,25 @@ def stats_table(groups: Sequence[GroupStats], baselines: Sequence[GroupStats], m
     rule = "|---|---:|---:|---:|"
     verb = "fall to" if lower_better else "reach"
     statistic = "IQM" if config.statistic == "iqm" else "mean"
+    # the column of the x reaching each baseline, unless no group has a curve (one evaluation per run)
+    curves = any(c.reaching is not None for group in groups for c in group.comparisons)
     for base in baselines:
-        header += (f" P(above {base.label}) [{level}] | {statistic} - {base.label} [{level}] | vs {base.label} "
-                   f"| {x_label} to {verb} {base.label} [{level}] |")
-        rule += "---:|---:|---|---:|"
+        header += f" P(above {base.label}) [{level}] | {statistic} - {base.label} [{level}] | vs {base.label} |"
+        rule += "---:|---:|---|"
+        if curves:
+            header += f" {x_label} to {verb} {base.label} [{level}] |"
+            rule += "---:|"
     rows = [header, rule]
     for group in groups:
         row = f"| {group.label} | {group.runs} | {group.iqm.text()} | {group.mean.text()} |"
         for comparison in group.comparisons:
-            row += (f" {comparison.poi.text(2)} | {comparison.difference.text()} | {comparison.verdict} "
-                    f"| {comparison.reaching.text()} |")
+            row += f" {comparison.poi.text(2)} | {comparison.difference.text()} | {comparison.verdict} |"
+            if curves:
+                row += f" {comparison.reaching.text() if comparison.reaching else ''} |"
         rows.append(row)
     for base in baselines:
         rows.append(f"| {base.label} (baseline) | {base.runs} | {base.iqm.text()} | {base.mean.text()} |"
-                    + " |" * (4 * len(baselines)))
+                    + " |" * ((3 + curves) * len(baselines)))
     return "\n".join(rows)
 
 
@@ -412,7 +417,8 @@ def stats_json(groups: Sequence[GroupStats], baselines: Sequence[GroupStats], me
             data["comparisons"] = [
                 {"baseline": c.baseline, "probability_of_improvement": estimate(c.poi),
                  "difference": estimate(c.difference), "verdict": c.verdict,
-                 "first_reaching": {"estimate": c.reaching.value, "ci": [c.reaching.low, c.reaching.high]}}
+                 "first_reaching": c.reaching and {"estimate": c.reaching.value,
+                                                   "ci": [c.reaching.low, c.reaching.high]}}
                 for c in g.comparisons]
         return data
 

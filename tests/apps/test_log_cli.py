@@ -280,6 +280,22 @@ def test_stats_equals_rliable_called_directly(tmp_path, capsys):
     assert "| above |" in table and "| below | never [never, never] |" in table
 
 
+def test_stats_of_evaluations_has_no_column_of_reaching(tmp_path, capsys):
+    """Runs of one evaluation each (aia-eval's): their verdicts, and no curve to reach a baseline along."""
+    for seed in range(4):
+        _fake_run(tmp_path / f"eval/{seed}", "dqn", seed, [1500.0 + 10 * seed])
+        _fake_run(tmp_path / f"arvi/{seed}", "arvi", seed, [1000.0 + 50 * seed])
+    arguments = ["stats", str(tmp_path / "eval"), "--baseline", str(tmp_path / "arvi"), "--baseline-label", "ARVI",
+                 "--reps", "100"]
+    assert main(arguments) == 0
+    table = capsys.readouterr().out
+    assert "| vs ARVI |\n" in table and "to reach" not in table and "| 1.00 [1.00, 1.00] |" in table
+    assert "| above |\n" in table and "| ARVI (baseline) | 4 |" in table
+    assert main([*arguments, "--json"]) == 0
+    comparison = json.loads(capsys.readouterr().out)["groups"][0]["comparisons"][0]
+    assert comparison["verdict"] == "above" and comparison["first_reaching"] is None
+
+
 def test_stats_refuses_a_bad_group_key_too_few_runs_and_bad_options_in_one_line(tmp_path, capsys):
     _stats_runs(tmp_path)
     runs = str(tmp_path / "m")
