@@ -82,9 +82,9 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
     frames = checkpoint["state"]["frames"]
     if logger is not None:
         # the trained policy's config (algo, ...; env: the setting its episodes ran in) and, as trained_env, the
-        # setting it was trained in: evaluations group by where their policies learned (aia-log --group-by
-        # trained_env.map)
-        logger.log_hparams(OmegaConf.merge(cfg, {"trained_env": trained}))
+        # setting it was trained in, every key filled (a key added after the checkpoint: its default):
+        # evaluations group by where their policies learned (aia-log --group-by trained_env.map)
+        logger.log_hparams(OmegaConf.merge(cfg, {"trained_env": OmegaConf.structured(to_tracking_config(trained))}))
     result = {"checkpoint": str(path), "algo": cfg.algo.name, "frames_trained": frames, "episodes": episodes,
               "epsilon": epsilon}
     return result | score_episodes(env, policy, [logger], frames)[0]
