@@ -3,8 +3,9 @@ and jumps over the cells a coarse distance field proves free.
 
 :class:`aia.envs.sensing.WorldMapGeometry` asks, every step and for every world, how far each ray in the field of
 view goes before it enters an occupied cell. Done as gathers (every cell of every ray in view: 42 rays of up to
-about 70 cells at the paper's 0.05 rad spacing, 10 m range and 0.2 m cells), it was 65 ms of a compiled step of
-4,096 worlds (``random_obstacles``: 0.08x the fixed map's frames/s). The walk here reads cells in ray order and
+about 70 cells at the paper's 0.05 rad spacing, 10 m range and 0.2 m cells), it was about 45 of the 57 ms of a
+compiled step of 4,096 worlds (``random_obstacles``); walked, it is 11 of 23 ms (2.4x the env's frames/s; about
+170 cells read a world instead of 3,000; docs/speed.md). The walk reads cells in ray order and
 
 * stops a ray at its first hit, and at the first cell farther than the nearest value found so far (the walls'
   distances included), which leaves the minimum over the rays and its first index as they were;
@@ -15,7 +16,9 @@ about 70 cells at the paper's 0.05 rad spacing, 10 m range and 0.2 m cells), it 
   so the first cell beyond the radius is a lookup in two tables per ray.
 
 Every hit is the gathered code's to the bit (same cells, same precomputed distances;
-``tests/envs/test_ray_walk.py``); the figure against the gathers is in docs/speed.md.
+``tests/envs/test_ray_walk.py``). Inside a compiled step the second thread gains nothing (the compiled kernels'
+OpenMP threads spin on the other core after their loops: the step takes the same time with the walk on one
+thread; ``OMP_WAIT_POLICY=PASSIVE`` takes 15 % off it).
 """
 
 from __future__ import annotations

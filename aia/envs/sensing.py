@@ -304,8 +304,8 @@ class WorldMapGeometry(Geometry):
         cols, rows, distances = _ray_offsets(self.num_bins, resolution, sensor_range)
         self._ray_cols, self._ray_rows = cols.to(self.device), rows.to(self.device)
         self._ray_distances = distances.to(self.device, dtype)
-        # On the CPU the rays are walked (aia.envs.ray_walk; the figure against the gathers is in its docstring),
-        # elsewhere gathered whole.
+        # On the CPU the rays are walked (aia.envs.ray_walk: 2.4x the env's frames/s at 4,096 worlds), elsewhere
+        # gathered whole.
         self._walk = (RayWalk(num_worlds, self.shape, cols, rows, self._ray_distances)
                       if self.device.type == "cpu" else None)
 
