@@ -146,10 +146,9 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     curves = learning_curves(runs, metric, group_by, window, x_axis)
     bands = curve_bands(runs, metric, group_by, window, x_axis, bootstrap) if bootstrap else []
     figure, axes = plt.subplots(figsize=(7, 4.5), dpi=120)
-    statistic = "IQM" if bootstrap and bootstrap.statistic == "iqm" else bootstrap and bootstrap.statistic
     for band in bands:
-        line, = axes.plot(band.x, band.centre,
-                          label=f"{band.label} ({band.runs} runs, {statistic} and {bootstrap.ci_level:.0%} CI)")
+        line, = axes.plot(band.x, band.centre, label=f"{band.label} ({band.runs} runs, {bootstrap.statistic_name} "
+                                                     f"and {bootstrap.ci_level:.0%} CI)")
         axes.fill_between(band.x, band.low, band.high, color=line.get_color(), alpha=0.2)
     for curve in curves if not bands else ():
         line, = axes.plot(curve.x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
@@ -160,7 +159,7 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
             check_runs(label, len(members), bootstrap)
             estimate = level_estimates(levels_of(members, metric), bootstrap)[STATISTICS.index(bootstrap.statistic)]
             centre, low, high = estimate.value, estimate.low, estimate.high
-            label = f"{label} ({len(members)} runs, {statistic} and {bootstrap.ci_level:.0%} CI)"
+            label = f"{label} ({len(members)} runs, {bootstrap.statistic_name} and {bootstrap.ci_level:.0%} CI)"
         else:
             mean, std, count = baseline_level(members, metric)
             centre, low, high, label = mean, mean - std, mean + std, f"{label} ({count} values)"

@@ -80,6 +80,11 @@ class StatsConfig:
                              "number")
 
     @property
+    def statistic_name(self) -> str:
+        """The statistic as tables and legends name it: ``IQM`` or ``mean``."""
+        return "IQM" if self.statistic == "iqm" else self.statistic
+
+    @property
     def threshold(self) -> float:
         """The verdict's threshold (that of ``verdict_by``)."""
         return self.poi_threshold if self.verdict_by == "poi" else self.difference_threshold
@@ -372,13 +377,13 @@ def stats_table(groups: Sequence[GroupStats], baselines: Sequence[GroupStats], m
     header = f"| group | runs | IQM [{level}] | mean [{level}] |"
     rule = "|---|---:|---:|---:|"
     verb = "fall to" if lower_better else "reach"
-    statistic = "IQM" if config.statistic == "iqm" else "mean"
+    statistic = config.statistic_name
     # the column of the x reaching each baseline, unless no group has a curve (one evaluation per run)
-    curves = any(c.reaching is not None for group in groups for c in group.comparisons)
+    reaching = any(c.reaching is not None for group in groups for c in group.comparisons)
     for base in baselines:
         header += f" P(above {base.label}) [{level}] | {statistic} - {base.label} [{level}] | vs {base.label} |"
         rule += "---:|---:|---|"
-        if curves:
+        if reaching:
             header += f" {x_label} to {verb} {base.label} [{level}] |"
             rule += "---:|"
     rows = [header, rule]
@@ -386,12 +391,12 @@ def stats_table(groups: Sequence[GroupStats], baselines: Sequence[GroupStats], m
         row = f"| {group.label} | {group.runs} | {group.iqm.text()} | {group.mean.text()} |"
         for comparison in group.comparisons:
             row += f" {comparison.poi.text(2)} | {comparison.difference.text()} | {comparison.verdict} |"
-            if curves:
+            if reaching:
                 row += f" {comparison.reaching.text() if comparison.reaching else ''} |"
         rows.append(row)
     for base in baselines:
         rows.append(f"| {base.label} (baseline) | {base.runs} | {base.iqm.text()} | {base.mean.text()} |"
-                    + " |" * ((3 + curves) * len(baselines)))
+                    + " |" * ((3 + reaching) * len(baselines)))
     return "\n".join(rows)
 
 

@@ -99,6 +99,7 @@ class Expansion:
         self.arc_velocity = model.primitives.unsqueeze(1) * fractions.unsqueeze(-1)
         # what the CPU kernel reads of the model (made on first use): the arcs' half turns, and the rest
         self._kernel_constants: tuple[Tensor, dict] | None = None
+        self._per_world = isinstance(model.geometry, WorldMapGeometry)  # a map per world, or one for all
 
     def extend(self, below: Level, level: Level, parents: Tensor, positions: Tensor, maps: Tensor
                ) -> dict[str, Tensor]:
@@ -126,8 +127,7 @@ class Expansion:
         half_turn, constants = self._kernel_constants
         # the arcs' cosines and sines as se2_step computes them (the same tensor ops: the same bits)
         heading = level.pose.index_select(0, parents)[:, None, None, 2] + half_turn
-        per_world = isinstance(self.model.geometry, WorldMapGeometry)
-        world_maps = maps.numpy() if per_world else np.zeros(maps.shape[0], dtype=np.int64)  # one map: map 0
+        world_maps = maps.numpy() if self._per_world else np.zeros(maps.shape[0], dtype=np.int64)  # one map: map 0
         return expand(parents.numpy(), level.pose.numpy(), level.cov.numpy(), level.logdet.numpy(),
                       level.cost.numpy(), level.world.numpy(), world_maps, positions.contiguous().numpy(),
                       torch.cos(heading).numpy(), torch.sin(heading).numpy(),
@@ -139,10 +139,9 @@ class Expansion:
         model, geometry = self.model, self.model.geometry
         half_turn, chord, turn = unicycle_arc(self.arc_velocity, model.dt)
         samples = math.ceil(2 * geometry.sensor_range / geometry.resolution) + 1
-        per_world = isinstance(geometry, WorldMapGeometry)
-        occupancy = geometry.occupancy if per_world else geometry.occupancy[None]
+        occupancy = geometry.occupancy if self._per_world else geometry.occupancy[None]
         # per-world maps have no collision grid (a fine grid per world): the kernel tests the margin itself
-        collision = torch.zeros(0, 0, dtype=torch.bool) if per_world else geometry.collision
+        collision = torch.zeros(0, 0, dtype=torch.bool) if self._per_world else geometry.collision
         return half_turn, {
             "chord": chord.numpy(), "turn": turn.numpy(),
             "collision": collision.numpy(), "fine_cell": geometry.fine_cell,

@@ -12,14 +12,17 @@ import torch
 
 T = TypeVar("T")
 
-# One thread per torch CPU thread, made on first use, kept for the process (a kernel called every env step would
-# otherwise pay for a pool each call), and made again in a forked child, which inherits the pool but not its threads.
+# One thread per torch CPU thread but the caller's, made on first use, kept for the process (a kernel called every
+# env step would otherwise pay for a pool each call), and made again in a forked child, which inherits the pool but
+# not its threads.
 _POOL: tuple[int, ThreadPoolExecutor] | None = None
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:
     global _POOL
     if _POOL is None or _POOL[0] < threads:
+        if _POOL is not None:
+            _POOL[1].shutdown(wait=False)
         _POOL = (threads, ThreadPoolExecutor(threads))
     return _POOL[1]
 
@@ -40,4 +43,6 @@ def in_shares(work: Callable[[int, int], T], count: int) -> list[T]:
     shares = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
     if len(shares) <= 1:
         return [work(*share) for share in shares]
-    return list(_pool(len(shares)).map(lambda share: work(*share), shares))
+    others = [_pool(len(shares) - 1).submit(work, *share) for share in shares[1:]]
+    first = work(*shares[0])
+    return [first, *(future.result() for future in others)]
