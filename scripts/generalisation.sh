@@ -24,7 +24,7 @@
 # $OUT/evals/<map>/<trained on>/<method=...,seed=...> (an evaluation already written is kept: a stopped call
 # goes on where it stopped), ARVI to $OUT/arvi/<map>/seed=<seed>.
 set -euo pipefail
-# seed_list, parse_phases, machine_speed, phase
+# seed_list, parse_phases, machine_speed, phase, throttle, drain
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
 SEEDS=${SEEDS:-0-4}
@@ -84,7 +84,6 @@ evaluate() {
 }
 if [[ -n "${RUN_PHASE[evals]:-}" ]]; then
   phase "evaluations: every learned policy on $MAPS, $EPISODES episodes each (seed $EVAL_SEED), $JOBS at a time"
-  running=0 failed=0
   for trained in $TRAINED_ON; do
     for checkpoint in "$OUT/learners/$trained"/*/checkpoints/last.pt; do
       [[ -f "$checkpoint" ]] || continue
@@ -95,12 +94,11 @@ if [[ -n "${RUN_PHASE[evals]:-}" ]]; then
         mkdir -p "$(dirname "$dir")"
         rm -rf "$dir"  # a stopped evaluation's partial log: run logs are never overwritten
         evaluate "$checkpoint" "$map" "$dir" &
-        running=$(( running + 1 ))
-        if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
+        throttle
       done
     done
   done
-  while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
+  drain
   if (( failed )); then echo "an evaluation failed (its output above)" >&2; exit 1; fi
 fi
 

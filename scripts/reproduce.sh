@@ -47,7 +47,7 @@
 # Each run's folder is named by what varies (e.g. $OUT/empty1/learners/method=adfq_ts,seed=3), so a later call
 # with more seeds or methods adds runs next to the ones already there instead of overwriting them.
 set -euo pipefail
-# seed_list, parse_phases, machine_speed, phase
+# seed_list, parse_phases, machine_speed, phase, throttle, drain
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
 SETTINGS=${SETTINGS:-"empty1 obstacles1 small2 small3"}
@@ -183,13 +183,11 @@ figures() {
 }
 if [[ -n "${RUN_PHASE[figures]:-}" ]]; then
   phase "figures: Fig. 2 curves, results tables and Fig. 3-style trajectories, $JOBS settings at a time"
-  running=0 failed=0
   for setting in $SETTINGS; do
     figures "$setting" > "$FIGURES/$setting.log" 2>&1 &
-    running=$(( running + 1 ))
-    if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
+    throttle
   done
-  while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
+  drain
   for setting in $SETTINGS; do echo "-- $setting"; cat "$FIGURES/$setting.log"; done
   if (( failed )); then echo "a setting's figures failed (its output above)" >&2; exit 1; fi
 fi

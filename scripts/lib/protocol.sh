@@ -1,5 +1,5 @@
 # Shell functions of the experiment protocols (scripts/reproduce.sh, scripts/generalisation.sh), sourced by them.
-# They read the protocol's $OUT and keep the running phase in phase_name / phase_start.
+# They read the protocol's $OUT and $JOBS, and keep their state in globals (phase_name, phase_start; running, failed).
 
 # seed_list NAME VALUE: VALUE's seeds and ranges (0-19, 0-4,10) as a comma-separated list; exit 2 naming a bad one
 seed_list() {
@@ -58,4 +58,15 @@ phase() {
   phase_name=$1
   phase_start=$now
   if [[ -n "$phase_name" ]]; then echo "== $phase_name"; fi
+}
+
+# Background jobs, $JOBS at a time: `job &; throttle` after starting each, `drain` at the end; failed=1 once any
+# job has failed.
+running=0 failed=0
+throttle() {
+  running=$(( running + 1 ))
+  if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
+}
+drain() {
+  while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
 }
