@@ -23,6 +23,7 @@ from torch import Tensor
 
 from aia import rng
 from aia.modules.exploration import exploring
+from aia.modules.q_networks import network_in_keys
 from aia.modules.stacked import StackedConvQNetwork, StackedQNetwork
 
 
@@ -58,7 +59,7 @@ class PopulationQPolicy(TensorDictModuleBase):
             raise ValueError(f"{len(samples)} exploration kinds for {members} members")
         if any(samples) and network.log_sd_bounds is None:
             raise TypeError("Thompson sampling needs a network that returns (mean, log_sd): the ADFQ network")
-        self.in_keys = list(getattr(network, "in_keys", [in_key]))  # the conv network's: observation, local_map
+        self.in_keys = network_in_keys(network, in_key)
         self.out_keys = [action_key]
         self.network = network
         self.num_actions = num_actions

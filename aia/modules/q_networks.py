@@ -187,6 +187,12 @@ class _DirectOutputModule(TensorDictModule):
         return tensordict
 
 
+def network_in_keys(network: nn.Module, in_key: str = OBSERVATION_KEY) -> list[str]:
+    """The tensordict keys ``network`` reads, in its arguments' order: the ``in_keys`` a network names (the conv
+    networks': observation, local_map), else ``[in_key]``."""
+    return list(getattr(network, "in_keys", [in_key]))
+
+
 def make_qvalue_actor(
     network: nn.Module, action_spec: TensorSpec, in_key: str = OBSERVATION_KEY, adfq: bool = False
 ) -> TensorDictSequential:
@@ -200,6 +206,5 @@ def make_qvalue_actor(
     ``QValueModule`` needs to accept any leading batch shape (a batched spec makes it expect ``[B, B]``).
     """
     out_keys = ["action_value", "action_log_sd"] if adfq else ["action_value"]
-    in_keys = list(getattr(network, "in_keys", [in_key]))
-    value_module = _DirectOutputModule(network, in_keys=in_keys, out_keys=out_keys)
+    value_module = _DirectOutputModule(network, in_keys=network_in_keys(network, in_key), out_keys=out_keys)
     return TensorDictSequential(value_module, QValueModule(spec=_unbatched_categorical(action_spec)))

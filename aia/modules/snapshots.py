@@ -20,6 +20,7 @@ from torch import Tensor
 
 from aia import rng
 from aia.modules.exploration import exploring
+from aia.modules.q_networks import network_in_keys
 from aia.modules.stacked import StackedConvQNetwork, StackedQNetwork
 from aia.runtime.compiling import compiled
 
@@ -43,7 +44,7 @@ class SnapshotPolicy(TensorDictModuleBase):
         super().__init__()
         if not 0.0 <= epsilon <= 1.0:
             raise ValueError(f"epsilon={epsilon} must lie in [0, 1]")
-        self.in_keys = list(getattr(network, "in_keys", [in_key]))  # the conv network's: observation, local_map
+        self.in_keys = network_in_keys(network, in_key)
         self.out_keys = [action_key]
         self.network = network
         self.num_actions = num_actions
