@@ -15,6 +15,7 @@ budget every job writes the scores and log its own process would.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -74,7 +75,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
         cfg.env = setting  # the logged config names the setting its episodes ran in
     env = make_env(to_tracking_config(cfg.env), batch_size=episodes, device=device, seed=seed)
     if setting is not None:
-        _check_layout(path, observation_layout(env.observation_spec), trained)
+        _check_layout(path, _layout(setting), trained)
     actor = make_actor(cfg, env)
     actor.load_state_dict(checkpoint["actor"])
     policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec.n, epsilon, epsilon, 1, seed=seed,
@@ -115,7 +116,14 @@ def check_setting(path: str | Path, setting: DictConfig) -> None:
 
 def _layout(setting: DictConfig) -> str:
     """The observation layout of ``setting``'s env (:func:`~aia.training.components.observation_layout`)."""
-    return observation_layout(make_env(to_tracking_config(setting), batch_size=1).observation_spec)
+    return _layout_of(OmegaConf.to_yaml(setting, resolve=True))
+
+
+@functools.cache
+def _layout_of(setting: str) -> str:
+    """:func:`_layout` of a setting's YAML, from a one-world env built once per setting: a population's jobs
+    and the evaluation's own guard then ask again for free."""
+    return observation_layout(make_env(to_tracking_config(OmegaConf.create(setting)), batch_size=1).observation_spec)
 
 
 def _check_layout(path: str | Path, layout: str, trained: DictConfig) -> None:
