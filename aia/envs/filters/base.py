@@ -24,11 +24,13 @@ from aia.envs.belief_models import BeliefModel
 from aia.envs.dynamics import wrap_angle
 
 
-def wrap_entry(x: Tensor, index: int | None) -> Tensor:
-    """``x [..., n]`` with entry ``index`` (a heading or a bearing) wrapped to [-pi, pi); ``None``: ``x``."""
+def wrap_entry(x: Tensor, index: int | None, dim: int = -1) -> Tensor:
+    """``x`` with entry ``index`` of dimension ``dim`` (a heading or a bearing) wrapped to [-pi, pi); ``None``:
+    ``x``."""
     if index is None:
         return x
-    return torch.cat((x[..., :index], wrap_angle(x[..., index:index + 1]), x[..., index + 1:]), -1)
+    before, entry, after = x.split((index, 1, x.shape[dim] - index - 1), dim)
+    return torch.cat((before, wrap_angle(entry), after), dim)
 
 
 class BeliefFilter(ABC):

@@ -9,6 +9,7 @@ from aia import rng
 from aia.envs import make_env
 from aia.envs.belief_models import belief_model
 from aia.envs.filters import KalmanFilter, ParticleFilter
+from aia.envs.filters.particle import systematic_indices
 
 DT = 0.5
 
@@ -71,3 +72,17 @@ def test_particle_beliefs_are_finite_and_a_world_independent_of_the_batch():
 def test_bad_particle_settings_are_named(override, named):
     with pytest.raises(ValueError, match=named):
         make_env("empty1", overrides=["belief.filter=particle", override])
+
+
+@pytest.mark.parametrize("particles", [1, 2, 7, 256])
+def test_systematic_indices_equal_a_binary_search_of_the_positions(particles):
+    # The counted indices against torch.searchsorted of the positions (start + k) / K in the cumulative
+    # weights, on skewed weights (many particles get no copy, a few several) and on the uniform ones.
+    generator = torch.Generator().manual_seed(particles)
+    weights = torch.rand(300, particles, generator=generator, dtype=torch.float64) ** 4
+    weights = torch.cat((weights, torch.ones(1, particles, dtype=torch.float64)))
+    cumulative = torch.cumsum(weights / weights.sum(-1, keepdim=True), -1)
+    start = torch.rand(301, generator=generator, dtype=torch.float64)
+    positions = start[:, None] / particles + torch.arange(particles, dtype=torch.float64) / particles
+    expected = torch.searchsorted(cumulative, positions).clamp_max(particles - 1)
+    assert torch.equal(systematic_indices(cumulative, start), expected)
