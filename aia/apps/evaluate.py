@@ -1,16 +1,18 @@
-"""``aia-eval``: score a policy on fresh episodes: one saved by ``aia-train`` or the ARVI planner.
+"""``aia-eval``: score a policy on fresh episodes: one saved by ``aia-train``, the ARVI planner or belief pursuit.
 
 ``policy=checkpoint`` rebuilds the network from the config stored in the checkpoint and acts at ``epsilon`` in
 the checkpoint's own setting, or in one the command line sets (``env.<key>=...`` changes keys of its own,
 ``env=<preset>`` replaces it) whose observation has the same layout (the same belief features and map image,
 on any map; another is refused); ``policy=arvi`` plans with :class:`~aia.planners.ARVIPolicy` (``planner.*``)
-in the setting ``env``. Either way ``episodes`` episodes run as one batched rollout through the same evaluation
-path; the app prints the score mean and std (SPEC 9) and writes ``eval.json`` and ``run.mcap`` (the scores, the
-config, and world 0's episode as Foxglove scenes: ``aia-log render`` draws it as in the paper's Fig. 3).
+and ``policy=pursuit`` acts by the belief-pursuit heuristic (:class:`~aia.policies.BeliefPursuitPolicy`, at
+``pursuit_standoff``), both in the setting ``env``. Either way ``episodes`` episodes run as one batched rollout
+through the same evaluation path; the app prints the score mean and std (SPEC 9) and writes ``eval.json`` and
+``run.mcap`` (the scores, the config, and world 0's episode as Foxglove scenes: ``aia-log render`` draws it as
+in the paper's Fig. 3).
 
 ``aia-eval -m policy=arvi seed=0,...,9 hydra/launcher=population`` runs :func:`evaluate_jobs`: all seeds'
 episodes in one rollout, planned in one batch with a budget group per seed, so that under a node or pass
-budget every job writes the scores and log its own process would.
+budget every job writes the scores and log its own process would (``policy=pursuit`` likewise).
 """
 
 from __future__ import annotations
@@ -36,8 +38,10 @@ from aia.envs import make_env
 from aia.envs.factory import to_tracking_config
 from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
 from aia.logging import MCAPLogger, SceneRecorder
+from aia.logging.mcap_logger import RUN_LOG
 from aia.modules import EpsilonGreedy
 from aia.planners import ARVIPolicy, to_arvi_config
+from aia.policies import BeliefPursuitPolicy
 from aia.runtime.memory import keep_freed_memory
 from aia.training import make_actor
 from aia.training.components import observation_layout
@@ -137,30 +141,39 @@ def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int
                      logger: MCAPLogger | None = None) -> dict:
     """Scores of the ARVI planner on ``episodes`` fresh episodes of the setting ``env_cfg`` (all worlds are
     planned together, so a wall-clock budget is shared by the batch; logged to ``logger`` if given)."""
-    return evaluate_planner_seeds(env_cfg, planner_cfg, episodes, [seed], device, [logger])[0]
+    return evaluate_scripted_seeds("arvi", env_cfg, episodes, [seed], device, [logger], planner_cfg=planner_cfg)[0]
 
 
-def evaluate_planner_seeds(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seeds: Sequence[int],
-                           device: str, loggers: Sequence[MCAPLogger | None] | None = None) -> list[dict]:
-    """:func:`evaluate_planner` for each of ``seeds`` (logged to ``loggers[k]``), all in one rollout: seed
-    ``k``'s worlds replay the episodes of an env seeded with it, planned as budget group ``k``. Under a node
-    or pass budget each result equals the seed's own call's; a wall-clock budget is shared by all worlds."""
+def evaluate_scripted_seeds(policy: str, env_cfg: DictConfig, episodes: int, seeds: Sequence[int], device: str,
+                            loggers: Sequence[MCAPLogger | None] | None = None, planner_cfg: DictConfig | None = None,
+                            standoff: float = 0.5) -> list[dict]:
+    """Scores of a policy that needs no training, ``arvi`` (planned with ``planner_cfg``) or ``pursuit`` (the
+    belief-pursuit heuristic at ``standoff``), on ``episodes`` fresh episodes of ``env_cfg`` for each of
+    ``seeds`` (logged to ``loggers[k]``), all in one rollout: seed ``k``'s worlds replay the episodes of an env
+    seeded with it (for ARVI planned as budget group ``k``). Each result equals the seed's own call's (ARVI:
+    under a node or pass budget; a wall-clock budget is shared by all worlds)."""
     _check_episodes(episodes)
-    planner = to_arvi_config(planner_cfg)
     loggers = [None] * len(seeds) if loggers is None else list(loggers)
     env = make_env(to_tracking_config(env_cfg), batch_size=episodes * len(seeds), device=device, seed=seeds[0])
     env.base_env.replay_streams(torch.tensor(seeds).repeat_interleave(episodes),
                                 torch.arange(episodes).repeat(len(seeds)),
                                 torch.zeros(episodes * len(seeds), dtype=torch.long))
-    env.append_transform(StepCounter())  # ARVIPolicy re-plans on the episode's step count
+    if policy == "arvi":
+        planner = to_arvi_config(planner_cfg)
+        env.append_transform(StepCounter())  # ARVIPolicy re-plans on the episode's step count
+        actor = ARVIPolicy(env, planner, groups=torch.arange(len(seeds)).repeat_interleave(episodes))
+        parameters = {k: v if not isinstance(v, float) or math.isfinite(v) else str(v)
+                      for k, v in asdict(planner).items()}
+        config, extra = {"planner": planner_cfg}, {"planner": parameters}
+    else:
+        actor = BeliefPursuitPolicy(env.base_env, standoff=standoff)
+        config = extra = {"pursuit_standoff": standoff}
     for seed, logger in zip(seeds, loggers, strict=True):
         if logger is not None:
-            logger.log_hparams(OmegaConf.create({"policy": "arvi", "env": env_cfg, "planner": planner_cfg,
-                                                 "episodes": episodes, "seed": seed}))
-    policy = ARVIPolicy(env, planner, groups=torch.arange(len(seeds)).repeat_interleave(episodes))
-    parameters = {k: v if not isinstance(v, float) or math.isfinite(v) else str(v) for k, v in asdict(planner).items()}
-    return [{"policy": "arvi", "planner": parameters, "episodes": episodes} | result
-            for result in score_episodes(env, policy, loggers)]
+            logger.log_hparams(OmegaConf.create({"policy": policy, "env": env_cfg, **config, "episodes": episodes,
+                                                 "seed": seed}))
+    return [{"policy": policy, **extra, "episodes": episodes} | result
+            for result in score_episodes(env, actor, loggers)]
 
 
 def score_episodes(env, policy, loggers: Sequence[MCAPLogger | None], frame: int = 0) -> list[dict]:
@@ -194,14 +207,19 @@ def _check_episodes(episodes: int) -> None:
 @hydra_app("aia-eval", config_name="eval", population="aia.apps.evaluate.evaluate_jobs")  # bad input: exit 2
 def main(cfg: DictConfig) -> float:
     """Entry point of ``aia-eval``; returns the score mean."""
-    setting = _validate(cfg, HydraConfig.get().overrides.task)
-    return run_jobs([cfg], [Path(HydraConfig.get().runtime.output_dir)], [setting])[0]
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    setting = _validate(cfg, HydraConfig.get().overrides.task, out_dir)
+    return run_jobs([cfg], [out_dir], [setting])[0]
 
 
-def _validate(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig | None:
-    """:func:`~aia.config.validation.validate_eval_config`, and a checkpoint's setting checked
-    (:func:`check_setting`) before any run log is written; returns that setting (:func:`checkpoint_setting`)."""
+def _validate(cfg: DictConfig, overrides: Sequence[str], out_dir: Path) -> DictConfig | None:
+    """:func:`~aia.config.validation.validate_eval_config`, a checkpoint's setting checked
+    (:func:`check_setting`), and the job's folder ``out_dir`` checked to hold no run log (one is never
+    overwritten), before any run log is written; returns that setting (:func:`checkpoint_setting`)."""
     validate_eval_config(cfg, overrides)
+    require(not (out_dir / RUN_LOG).exists(), "output folder", str(out_dir),
+            f"a folder without a run log ({RUN_LOG} is there already, and a run log is never overwritten: "
+            "choose another hydra.run.dir or hydra.sweep.dir)")
     setting = checkpoint_setting(cfg, overrides)
     if setting is not None:
         check_setting(cfg.checkpoint, setting)
@@ -215,7 +233,7 @@ def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[
     settings: dict[int, DictConfig | None] = {}  # each valid job's setting, as its validation found it
 
     def validate(k: int, cfg: DictConfig) -> None:
-        settings[k] = _validate(cfg, _job_overrides(out_dirs[k]))
+        settings[k] = _validate(cfg, _job_overrides(out_dirs[k]), Path(out_dirs[k]))
 
     return run_valid_jobs("aia-eval", cfgs, validate,
                           lambda valid: run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid],
@@ -225,8 +243,8 @@ def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[
 def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path],
              settings: Sequence[DictConfig | None] | None = None) -> list[float]:
     """Evaluate validated configs that differ only in ``seed``, each writing its ``eval.json`` and ``run.mcap``
-    to its folder: ``policy=arvi`` in one rollout (:func:`evaluate_planner_seeds`), checkpoints one by one, job
-    ``k``'s in ``settings[k]`` (:func:`checkpoint_setting`; ``None``, or no ``settings``: its own).
+    to its folder: ``policy=arvi`` or ``pursuit`` in one rollout (:func:`evaluate_scripted_seeds`), checkpoints
+    one by one, job ``k``'s in ``settings[k]`` (:func:`checkpoint_setting`; ``None``, or no ``settings``: its own).
     Each job's score mean."""
     check_population(cfgs)
     first = cfgs[0]
@@ -238,9 +256,9 @@ def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path],
                           run_metadata={"seed": cfg.seed, "policy": cfg.policy})
                for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
     try:
-        if first.policy == "arvi":
-            results = evaluate_planner_seeds(first.env, first.planner, first.episodes, [cfg.seed for cfg in cfgs],
-                                             first.device, loggers)
+        if first.policy != "checkpoint":
+            results = evaluate_scripted_seeds(first.policy, first.env, first.episodes, [cfg.seed for cfg in cfgs],
+                                              first.device, loggers, first.planner, first.pursuit_standoff)
         else:
             settings = [None] * len(cfgs) if settings is None else settings
             results = [evaluate_checkpoint(cfg.checkpoint, cfg.episodes, cfg.epsilon, cfg.seed, cfg.device, logger,
@@ -258,8 +276,10 @@ def _report(cfg: DictConfig, out_dir: Path, logger: MCAPLogger, result: dict) ->
     """Print a job's scores and write its ``eval.json``."""
     if cfg.policy == "checkpoint":
         what, how = f"{result['algo']} after {result['frames_trained']} frames", f"epsilon {cfg.epsilon}"
-    else:
+    elif cfg.policy == "arvi":
         what, how = "arvi", f"horizon {cfg.planner.horizon}, budget {_budget(cfg.planner)}"
+    else:
+        what, how = "pursuit", f"standoff {cfg.pursuit_standoff} of the sensor range"
     print(f"{what}: score {result['score_mean']:.1f} +- {result['score_std']:.1f} over {cfg.episodes} episodes, "
           f"belief error {result['belief_error']:.1f} m ({how})")
     out = out_dir / "eval.json"

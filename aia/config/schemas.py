@@ -30,7 +30,7 @@ from aia.config.checks import Check, Choice, ConvLayers, Device, Flag, NamesFrom
 from aia.logging.mcap_logger import COMPRESSIONS
 
 LOSS_FUNCTIONS = ("smooth_l1", "l2", "l1")
-EVAL_POLICIES = ("checkpoint", "arvi")
+EVAL_POLICIES = ("checkpoint", "arvi", "pursuit")
 ROLLOUT_POLICIES = ("random", "pursuit")
 
 SEED = Number(ge=0, integer=True)
@@ -180,6 +180,7 @@ class EvalConfig:
     device: str = setting(check=Device())
     threads: Optional[int] = setting(check=THREADS)
     keep_freed_memory: bool = setting(check=Flag())
+    pursuit_standoff: Any = setting(check=PROBABILITY)
 
 
 @dataclass

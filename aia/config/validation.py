@@ -72,9 +72,9 @@ def validate_train_config(cfg: DictConfig) -> None:
 
 def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None:
     """Check the composed ``aia-eval`` config (conf/eval.yaml); ``overrides`` are the command line's
-    (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` a ``planner`` override, which it would
-    ignore, is refused (an ``env`` override sets the setting a checkpoint is evaluated in: ``aia.apps.evaluate``
-    checks it against the checkpoint)."""
+    (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` or ``pursuit`` a ``planner`` override,
+    which it would ignore, is refused (an ``env`` override sets the setting a checkpoint is evaluated in:
+    ``aia.apps.evaluate`` checks it against the checkpoint)."""
     check_settings(cfg, EvalConfig)
     if cfg.policy == "arvi":
         to_tracking_config(cfg.env)
@@ -86,7 +86,10 @@ def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None
     ignored = overrides_group(overrides, "planner")
     if ignored:
         key, _, value = ignored[0].lstrip("+~").partition("=")
-        raise ConfigError(key, value, "no planner override with policy=checkpoint (planner applies to policy=arvi)")
+        raise ConfigError(key, value, f"no planner override with policy={cfg.policy} (planner applies to policy=arvi)")
+    if cfg.policy == "pursuit":
+        to_tracking_config(cfg.env)
+        return
     require(not OmegaConf.is_missing(cfg, "checkpoint"), "checkpoint", "???",
             "the path of a checkpoint .pt written by aia-train (required with policy=checkpoint)")
     check_checkpoint_file("checkpoint", Path(str(cfg.checkpoint)))

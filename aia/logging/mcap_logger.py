@@ -72,6 +72,7 @@ from aia.logging.metadata import STATUS_METADATA, flatten
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 LOG_TOPIC = "/log"
 _PACKAGES = ("aia", "torch", "torchrl", "tensordict", "hydra-core", "mcap", "numpy")
+RUN_LOG = "run.mcap"  # a run's log in its folder (MCAPLogger's file_name by default)
 
 
 class MCAPRun:
@@ -211,7 +212,7 @@ class MCAPLogger(Logger):
         run_metadata: extra entries of metadata ``run`` (seed, algorithm, env, ...).
     """
 
-    def __init__(self, exp_name: str, log_dir: str | Path, file_name: str = "run.mcap", compression: str = "zstd",
+    def __init__(self, exp_name: str, log_dir: str | Path, file_name: str = RUN_LOG, compression: str = "zstd",
                  chunk_size: int = 1 << 20, flush_interval_s: float = 5.0,
                  run_metadata: Mapping[str, Any] | None = None) -> None:
         self._options = (Path(log_dir) / file_name, compression, chunk_size, flush_interval_s)

@@ -117,11 +117,21 @@ def test_eval_rejects_bad_input_in_one_line(not_a_checkpoint, tmp_path, monkeypa
         (["policy=arvi", "planner.horizon=0"], ["policy='arvi'", "planner.horizon=0"]),
         (["policy=arvi", "env.num_targets=0"], ["env.num_targets=0", ">= 1"]),
         (["policy=arvi", "planner=psychic"], ["planner/psychic", "arvi"]),
+        (["policy=pursuit", "planner.horizon=3"], ["planner.horizon='3'", "policy=pursuit"]),
+        (["policy=pursuit", "pursuit_standoff=2"], ["pursuit_standoff=2", "<= 1"]),
     ]
     for argv, words in cases:
         code, err = run_app(evaluate.main, argv, tmp_path, monkeypatch, capsys)
         _assert_one_line(code, err, "aia-eval", *words)
     assert not list(tmp_path.rglob("*.mcap"))
+
+
+def test_eval_refuses_a_folder_with_a_run_log_in_one_line_and_keeps_it(tmp_path, monkeypatch, capsys):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "run.mcap").write_bytes(b"an earlier run's log")
+    code, err = run_app(evaluate.main, ["policy=pursuit", "episodes=1"], tmp_path, monkeypatch, capsys)
+    _assert_one_line(code, err, "aia-eval", f"output folder='{tmp_path / 'run'}'", "never overwritten")
+    assert (tmp_path / "run" / "run.mcap").read_bytes() == b"an earlier run's log"
 
 
 def test_rollout_rejects_bad_input_in_one_line(bad_map, tmp_path, monkeypatch, capsys):

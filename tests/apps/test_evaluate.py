@@ -1,4 +1,5 @@
-"""aia-eval: scores a saved policy or the ARVI planner reproducibly; names a bad checkpoint or policy."""
+"""aia-eval: scores a saved policy, the ARVI planner or belief pursuit reproducibly; names a bad checkpoint or
+policy."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import pytest
 from hydra import compose, initialize_config_module
 
 import aia.apps.evaluate as evaluate_app
-from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner
+from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner, evaluate_scripted_seeds
+from aia.apps.rollout import score_policy
 from aia.logging import read_run
 from aia.training import train
 from tests.training.test_population import MAP_OBSERVATION
@@ -88,6 +90,18 @@ def test_arvi_is_scored_through_the_evaluation_path():
     assert first["planner"]["horizon"] == 12 and first["planner"]["eps"] == "inf"
     with pytest.raises(ValueError, match="planner.horizon=0"):
         evaluate_planner(cfg.env, _arvi_config("planner.horizon=0").planner, episodes=1, seed=1, device="cpu")
+
+
+def test_pursuit_scores_as_aia_rollout_and_its_seeds_together_as_each_alone():
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        cfg = compose(config_name="eval", overrides=["policy=pursuit", "env=ttenv_v2", "env.max_steps=15"])
+        rollout = compose(config_name="rollout", overrides=["env=ttenv_v2", "env.max_steps=15", "num_worlds=3",
+                                                            "seed=1"])
+    together = evaluate_scripted_seeds("pursuit", cfg.env, 3, [1, 2], "cpu", standoff=cfg.pursuit_standoff)
+    alone = [evaluate_scripted_seeds("pursuit", cfg.env, 3, [seed], "cpu")[0] for seed in (1, 2)]
+    assert together == alone and together[0]["scores"] != together[1]["scores"]
+    assert together[0]["policy"] == "pursuit" and together[0]["pursuit_standoff"] == 0.5
+    assert together[0]["score_mean"] == pytest.approx(score_policy(rollout, "pursuit")["score_mean"], rel=1e-6)
 
 
 def test_app_runs_arvi(tmp_path):  # an unknown policy is named in tests/apps/test_bad_inputs.py
