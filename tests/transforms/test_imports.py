@@ -8,8 +8,6 @@ import sys
 
 
 def test_the_transforms_import_before_the_env_package():
-    code = ("import aia.transforms\n"
-            "from aia.envs import TrackingTransformedEnv, make_env\n"
-            "assert make_env('empty1').transform[0].__class__.__name__ == 'BeliefFeatures'\n")
+    code = "import aia.transforms\nfrom aia.envs import TrackingTransformedEnv, make_env\n"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr.strip().splitlines()[-1:]
