@@ -35,7 +35,7 @@ from aia import rng
 from aia.envs import belief
 from aia.envs.belief_models import BeliefModel
 from aia.envs.filters.base import BeliefFilter, wrap_entry
-from aia.envs.filters.unscented import residual
+from aia.envs.filters.unscented import residual, weighted_mean
 
 
 class ParticleFilter(BeliefFilter):
@@ -115,15 +115,9 @@ class ParticleFilter(BeliefFilter):
         """The state with its Gaussian summary, from particles ``entries [B, N, d, K]``: the weighted mean
         (circular in the heading) and covariance. The particles are kept as ``[B, N, K, d]``, a view of
         ``entries``."""
-        w = weights.unsqueeze(-2)
-        mean = (w * entries).sum(-1)
-        angle = self.model.angle
-        if angle is not None:
-            heading = torch.atan2((w * torch.sin(entries[..., angle:angle + 1, :])).sum(-1),
-                                  (w * torch.cos(entries[..., angle:angle + 1, :])).sum(-1))
-            mean = torch.cat((mean[..., :angle], heading, mean[..., angle + 1:]), -1)
+        mean = weighted_mean(entries, weights, self.model.angle, dim=-1)
         spread = self._wrap(entries - mean.unsqueeze(-1))
-        cov = (w * spread) @ spread.mT
+        cov = (weights.unsqueeze(-2) * spread) @ spread.mT
         return {"belief_mean": mean, "belief_cov": 0.5 * (cov + cov.mT), "belief_particles": entries.mT,
                 "belief_weights": weights}
 

@@ -72,14 +72,14 @@ def sigma_points(mean: Tensor, cov: Tensor, kappa: float) -> Tensor:
     return torch.cat((centre, centre + columns, centre - columns), -2)
 
 
-def weighted_mean(points: Tensor, weights: Tensor, angle: int | None) -> Tensor:
-    """``[..., n]`` the weighted mean of ``points [..., P, n]``, circular in entry ``angle``."""
-    w = weights.unsqueeze(-1)
-    mean = (w * points).sum(-2)
+def weighted_mean(points: Tensor, weights: Tensor, angle: int | None, dim: int = -2) -> Tensor:
+    """``[..., n]`` the weighted mean of ``points [..., P, n]`` (``dim=-1``: entries first, ``[..., n, P]``),
+    circular in entry ``angle``; ``weights`` ``[P]`` or ``[..., P]``."""
+    mean = (weights.unsqueeze(-1 if dim == -2 else -2) * points).sum(dim)
     if angle is None:
         return mean
-    heading = torch.atan2((w[..., 0] * torch.sin(points[..., angle])).sum(-1),
-                          (w[..., 0] * torch.cos(points[..., angle])).sum(-1))
+    heading = points.select(-1 if dim == -2 else -2, angle)
+    heading = torch.atan2((weights * torch.sin(heading)).sum(-1), (weights * torch.cos(heading)).sum(-1))
     return torch.cat((mean[..., :angle], heading.unsqueeze(-1), mean[..., angle + 1:]), -1)
 
 
