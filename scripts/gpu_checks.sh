@@ -3,7 +3,9 @@
 # population's steady steps eager and compiled (benchmarks/step_profile.py: why compiled CUDA jobs ran slower
 # than eager ones on an H200), the eager population rows with a count of the loop's host-device syncs, the
 # compiled rows (with dynamo's recompile and graph-break log), the quick start and a population sweep with
-# device=cuda. STEPS picks some of them (a device command may run 10 minutes at most). Each step has
+# device=cuda; STEPS=envs instead measures the env's CUDA rows of the belief filters and the maps (issues 43 and 44:
+# kf, the UKFs, the particle filter; obstacles1, random_obstacles, ttenv_v4), compiled at 4,096 and 65,536 worlds.
+# STEPS picks some of them (a device command may run 10 minutes at most). Each step has
 # its own time limit and writes its log (and the benchmarks their JSON) under $OUT as it goes, so a run cut short
 # keeps what it measured; the last lines printed are each step's table or summary.
 #
@@ -16,9 +18,9 @@
 #   WHEELS     a folder of wheels to install (with aia from this checkout) into $OUT/site first []
 #   EAGER_P / COMPILED_P   population sizes of the eager and compiled rows [1,20,80,320 / 1,20,320]
 #   ALGOS      learners of the rows [dqn,adfq]
-#   STEPS      the steps to run, comma-separated [profile,eager,compiled,quickstart,sweep]
+#   STEPS      the steps to run, comma-separated [profile,eager,compiled,quickstart,sweep]; or envs
 #   PROFILE_ALGO PROFILE_P   the profiled population [dqn, 80]
-#   PROFILE_S EAGER_S COMPILED_S QUICKSTART_S SWEEP_S   each step's time limit in seconds [150 240 420 60 60]; a
+#   PROFILE_S EAGER_S COMPILED_S QUICKSTART_S SWEEP_S ENVS_S   each step's limit in seconds [150 240 420 60 60 540]; a
 #              compiled size takes about a minute per learner on an H200's host (its first compile and set-up)
 set -uo pipefail
 
@@ -36,7 +38,7 @@ start=$(date +%s)
 stamp() { echo "[$(( $(date +%s) - start )) s] $*"; }
 quiet() { grep -v -E "frame/s|it/s\]|Warning|warn\(|USDT" || true; }
 step() { [[ ",$STEPS," == *",$1,"* ]]; }
-ALL_STEPS=profile,eager,compiled,quickstart,sweep
+ALL_STEPS=profile,eager,compiled,quickstart,sweep,envs
 for name in ${STEPS//,/ }; do
   if [[ ",$ALL_STEPS," != *",$name,"* ]]; then
     echo "gpu_checks.sh: STEPS=$STEPS: expected a comma-separated subset of $ALL_STEPS" >&2
@@ -101,5 +103,15 @@ if step sweep; then
   (cd "$OUT" && timeout "${SWEEP_S:-60}" aia-train -m seed=0,1,2,3 lr=1e-3,5e-4 device="$DEVICE" frames=2000 \
     hydra/launcher=population hydra.sweep.dir="$OUT/sweep" > "$OUT/sweep.log" 2>&1; echo "exit $?" >> "$OUT/sweep.log")
   quiet < "$OUT/sweep.log" | grep -E "population|exit" | tail -6
+fi
+
+if step envs; then
+  stamp "env rows: belief filters and maps, compiled"
+  timeout "${ENVS_S:-540}" python3 "$ROOT/benchmarks/env_throughput.py" --device "$DEVICE" --modes compiled \
+    --batch-sizes 4096 65536 --settings empty1 ttenv_v2 ttenv_v3 "ttenv_v2:belief.filter=particle,belief.particles=256" \
+    "ttenv_v2:belief.filter=particle,belief.particles=1024" obstacles1 random_obstacles ttenv_v4 \
+    --out "$OUT/env_throughput.json" > "$OUT/envs.log" 2>&1
+  echo "exit $?" >> "$OUT/envs.log"
+  quiet < "$OUT/envs.log" | grep -E "^\||exit" | tail -20
 fi
 stamp done

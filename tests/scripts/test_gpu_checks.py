@@ -27,5 +27,5 @@ def test_an_unknown_step_gets_one_line_and_status_2(tmp_path):
                             env={**os.environ, "STEPS": "profile,nope", "OUT": "checks"})
     assert result.returncode == 2
     assert result.stderr == ("gpu_checks.sh: STEPS=profile,nope: expected a comma-separated subset of "
-                             "profile,eager,compiled,quickstart,sweep\n")
+                             "profile,eager,compiled,quickstart,sweep,envs\n")
     assert list((tmp_path / "checks").iterdir()) == []
