@@ -102,7 +102,7 @@ def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at
     stops at an episode's end with its checkpoints, its batch script requeues its task, and the task, run again
     (its 2-minute requeue delay cut short), continues with ``resume=auto`` to the end. The sweep succeeds with
     every job's full history in its folder, in two log segments."""
-    sweep_dir, frames, steps, name = tmp_path / "sweep", 3000, 50, f"aia-test-{uuid.uuid4().hex[:8]}"
+    sweep_dir, frames, steps, name = tmp_path / "sweep", 1500, 50, f"aia-test-{uuid.uuid4().hex[:8]}"
     command = ["aia-train", "-m", "hydra/launcher=population_slurm", "hydra.launcher.cpus_per_task=1",
                "hydra.launcher.mem_gb=1", "hydra.launcher.timeout_min=10", "hydra.launcher.poll_every_s=1",
                f"hydra.launcher.name={name}", f"hydra.sweep.dir={sweep_dir}", "seed=0,1", "hidden=[16],[24]",

@@ -102,16 +102,6 @@ def test_mcap_logger_gets_scores_config_and_recorded_episodes(tmp_path):
     assert run.topic_counts()["/log"] == ("foxglove.Log", 14)
 
 
-def test_training_runs_with_every_compile_switch_on(tmp_path):
-    cfg = _config("algo=adfq", "exploration=thompson", "frames=300", "compile.update=true", "compile.env=true",
-                  "compile.policy=true", *SMALL)
-    state = train(cfg, tmp_path)
-    assert state.frames == 300 and state.updates == 201 and len(state.eval_scores) == 7
-    assert all(math.isfinite(s) for s in state.eval_scores)
-    checkpoint = torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)
-    assert all(torch.isfinite(value).all() for value in checkpoint["actor"].values())
-
-
 @pytest.mark.parametrize("switch", [False, True])
 def test_compile_update_switch_decides_whether_the_step_is_compiled(tmp_path, monkeypatch, switch):
     # compile.update is also the name of DictConfig's dict method: reading the switch as an attribute
