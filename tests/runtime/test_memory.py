@@ -16,8 +16,8 @@ _PAGES = _LIVE * _ELEMENTS * 4 // 4096  # pages of one step's tensors
 def _faults_of_steps(steps: int) -> int:
     """Minor page faults of ``steps`` steps, each allocating and writing ``_LIVE`` tensors, then freeing them.
 
-    Counted for this thread alone, with torch on this thread: a process-wide count also took the faults of the
-    threads earlier tests in the same pytest worker left running (7,192 against a bound of 5,120, once)."""
+    Counted for this thread alone, with torch on this thread: a process-wide count also takes the faults of any
+    other thread of the pytest worker (it failed once at 7,192 against the bound of 5,120)."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

@@ -103,12 +103,9 @@ class ParticleFilter(BeliefFilter):
         weights = torch.where(low[..., None], torch.full_like(weights, 1.0 / K), weights)
         return self._summary(self._wrap(entries), weights)
 
-    def clip(self, mean: Tensor) -> Tensor:
-        """Headings wrapped; no other clipping (see the module docstring)."""
-        return wrap_entry(mean, self.model.angle)
-
     def _wrap(self, entries: Tensor) -> Tensor:
-        """Particles ``[..., d, K]`` with the heading's row wrapped."""
+        """Particles ``[..., d, K]`` with the heading's row wrapped; no other clipping (see the module
+        docstring)."""
         return wrap_entry(entries, self.model.angle, -2)
 
     def _summary(self, entries: Tensor, weights: Tensor) -> dict[str, Tensor]:

@@ -75,10 +75,11 @@ def sigma_points(mean: Tensor, cov: Tensor, kappa: float) -> Tensor:
 def weighted_mean(points: Tensor, weights: Tensor, angle: int | None, dim: int = -2) -> Tensor:
     """``[..., n]`` the weighted mean of ``points [..., P, n]`` (``dim=-1``: entries first, ``[..., n, P]``),
     circular in entry ``angle``; ``weights`` ``[P]`` or ``[..., P]``."""
-    mean = (weights.unsqueeze(-1 if dim == -2 else -2) * points).sum(dim)
+    entry_dim = -1 if dim == -2 else -2
+    mean = (weights.unsqueeze(entry_dim) * points).sum(dim)
     if angle is None:
         return mean
-    heading = points.select(-1 if dim == -2 else -2, angle)
+    heading = points.select(entry_dim, angle)
     heading = torch.atan2((weights * torch.sin(heading)).sum(-1), (weights * torch.cos(heading)).sum(-1))
     return torch.cat((mean[..., :angle], heading.unsqueeze(-1), mean[..., angle + 1:]), -1)
 
