@@ -38,7 +38,7 @@ from torch import Tensor
 from aia import rng
 from aia.config.errors import ConfigError
 from aia.envs.maps import RANDOM_SHAPES
-from aia.runtime.cpu_threads import in_shares
+from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, claim, descriptor, integer, real, run_kernel
 
 # The uniforms one obstacle takes: shape, centre x and y, angle, length, second length, width.
 _OBSTACLE_DRAWS = 7
@@ -55,8 +55,8 @@ class RandomObstacles:
         self.margin = margin
         self.draws = 1 + _OBSTACLE_DRAWS * int(config.num_obstacles[1])
         self.min_cells = max(1, math.ceil(config.min_start_area * self.shape[0] * self.shape[1]))
-        self._shapes = np.array([RANDOM_SHAPES.index(s) for s in config.shapes], dtype=np.int64)
-        self._half_widths = margin_rows(margin, self.resolution)
+        self._shapes = torch.tensor([RANDOM_SHAPES.index(s) for s in config.shapes], dtype=torch.int64)
+        self._half_widths = torch.from_numpy(margin_rows(margin, self.resolution))
         self._wall_cells = math.ceil(margin / self.resolution)
 
     def generate(self, keys: Tensor, worlds: Tensor | None = None,
@@ -72,28 +72,22 @@ class RandomObstacles:
             out = (torch.empty(keys.shape[0], *self.shape, dtype=torch.bool), torch.empty(keys.shape[0], *self.shape,
                    dtype=torch.bool), torch.empty(keys.shape[0], self.shape[0], dtype=torch.int64))
             worlds = torch.arange(keys.shape[0])
-        arrays = tuple(t.numpy() for t in out)
-        worlds, todo = worlds.cpu(), torch.arange(keys.shape[0])
+        worlds, todo = worlds.cpu().to(torch.int64), torch.arange(keys.shape[0])
         cfg = self.config
         shape_args = (self._shapes, int(cfg.num_obstacles[0]), int(cfg.num_obstacles[1]), float(cfg.length[0]),
                       float(cfg.length[1]), float(cfg.width[0]), float(cfg.width[1]), math.radians(cfg.rotation_deg),
-                      self.resolution, self._half_widths, self._wall_cells, *arrays)
+                      self.resolution, self._half_widths, self._wall_cells, *out)
         for attempt in range(cfg.attempts):
             u = rng.uniform(keys[todo], torch.full_like(todo, attempt), rng.WorldStream.MAP, self.draws, torch.float64)
-            counts = _in_threads(u.numpy(), worlds[todo].numpy(), shape_args)
-            todo = todo[torch.from_numpy(counts < self.min_cells)]
+            rows, counts = worlds[todo].contiguous(), torch.empty(todo.shape[0], dtype=torch.int64)
+            # Each layout rasterised by torch's CPU threads (aia.runtime.cpu_threads), a chunk of worlds at a time.
+            run_kernel(_layouts_entry, todo.shape[0], (u.contiguous(), rows, *shape_args, counts))
+            todo = todo[counts < self.min_cells]
             if todo.numel() == 0:
                 return out
         raise ConfigError("env.random_map", f"{todo.numel()} of {keys.shape[0]} worlds",
                           f"layouts whose connected start cells cover min_start_area={cfg.min_start_area} of the map "
                           f"within attempts={cfg.attempts} draws (fewer, shorter or thinner obstacles)")
-
-
-def _in_threads(u: np.ndarray, rows: np.ndarray, shape_args: tuple) -> np.ndarray:
-    """:func:`_layouts` of the draws ``u`` into ``rows``, in torch's CPU threads, each a share of the worlds (the
-    kernel releases the GIL); each layout's number of start cells."""
-    return np.concatenate(in_shares(lambda start, stop: _layouts(u[start:stop], rows[start:stop], *shape_args),
-                                    rows.shape[0]))
 
 
 def start_cells(occupancy: Tensor, resolution: float, margin: float) -> Tensor:
@@ -118,12 +112,12 @@ def margin_rows(margin: float, resolution: float) -> np.ndarray:
 
 @numba.njit(cache=True, nogil=True)
 def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_lo, width_hi, rotation, resolution,
-             half_widths, wall_cells, occupancy, starts, row_starts):  # pragma: no cover - compiled
-    """Rasterise the layout of each row of ``u`` into ``occupancy[worlds[i]]`` and its start cells into
-    ``starts[worlds[i]]`` (their number per row into ``row_starts[worlds[i]]``); returns each layout's number of
-    start cells."""
-    counts = np.zeros(worlds.shape[0], dtype=np.int64)
-    for i in range(worlds.shape[0]):
+             half_widths, wall_cells, occupancy, starts, row_starts, counts, first,
+             last):  # pragma: no cover - compiled
+    """For each ``i`` in ``first..last - 1``: rasterise the layout of row ``i`` of ``u`` into ``occupancy[worlds[i]]``
+    and its start cells into ``starts[worlds[i]]`` (their number per row into ``row_starts[worlds[i]]``), and its
+    number of start cells into ``counts[i]``."""
+    for i in range(first, last):
         grid = occupancy[worlds[i]]
         grid[:] = False
         draws = u[i]
@@ -149,7 +143,6 @@ def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_
                 n = _rectangle(grid, runs, n, resolution, cx, cy, angle, 0.0, -sy, a / 2, w / 2)
                 n = _rectangle(grid, runs, n, resolution, cx, cy, angle, 0.0, (w - b) / 2 - sy, w / 2, b / 2)
         counts[i] = _start_cells(runs[:n], half_widths, wall_cells, starts[worlds[i]], row_starts[worlds[i]])
-    return counts
 
 
 @numba.njit(cache=True)
@@ -266,3 +259,20 @@ def _root(parent, k):  # pragma: no cover - compiled
         parent[k] = parent[parent[k]]
         k = parent[k]
     return k
+
+
+# The kernel's entry (compiled when this module loads, after the kernels it calls).
+@numba.cfunc(ENTRY, nogil=True, cache=True)
+def _layouts_entry(data):  # pragma: no cover - compiled
+    """:func:`_layouts` of the arguments ``(u, worlds, *shape arguments, occupancy, starts, row_starts, counts)``,
+    chunk by chunk of the layouts."""
+    d = descriptor(data)
+    u, worlds, shapes = array2(d, 0, np.float64), array1(d, 1, np.int64), array1(d, 2, np.int64)
+    occupancy, starts = array3(d, 13, np.bool_), array3(d, 14, np.bool_)
+    row_starts, counts = array2(d, 15, np.int64), array1(d, 16, np.int64)
+    start, stop = claim(d)
+    while start < stop:
+        _layouts(u, worlds, shapes, integer(d, 3), integer(d, 4), real(d, 5), real(d, 6), real(d, 7), real(d, 8),
+                 real(d, 9), real(d, 10), array1(d, 11, np.int64), integer(d, 12), occupancy, starts, row_starts,
+                 counts, start, stop)
+        start, stop = claim(d)

@@ -19,8 +19,8 @@ Two geometries answer the same queries with the same definitions:
   save (the collision grids of 4,096 maps of 181 x 181 cells are 2.1 GB, the ray tables 16 MB and about a
   second to build a map: over an hour per episode of 4,096 worlds), so it computes the same values from the
   occupancy when asked: the collision test of the fine cell a point falls
-  in, and the ray table's entries along the bins in view (on the CPU walked ray by ray,
-  :mod:`aia.envs.ray_walk`). Each result equals :class:`MapGeometry`'s on the
+  in, and the ray table's entries along the bins in view (on the CPU, every query reads only the cells its answer
+  needs: :mod:`aia.envs.cpu_map_queries`). Each result equals :class:`MapGeometry`'s on the
   world's own map (``tests/envs/test_sensing.py``).
 """
 
@@ -37,9 +37,9 @@ import torch
 from torch import Tensor
 
 from aia.envs.belief import range_bearing
+from aia.envs.cpu_map_queries import CpuMapQueries
 from aia.envs.dynamics import wrap_angle
 from aia.envs.maps import GridMap, load_map
-from aia.envs.ray_walk import RayWalk
 
 if TYPE_CHECKING:
     from aia.envs.map_generator import RandomObstacles
@@ -131,20 +131,27 @@ class Geometry(ABC):
         polar = range_bearing(points, pose.unsqueeze(-2))
         seen = (polar[..., 0] <= self.sensor_range) & (polar[..., 1].abs() <= self.fov / 2)
         origin, points = torch.broadcast_tensors(pose[..., :2].unsqueeze(-2), points)
-        return seen & self.line_of_sight(origin, points), polar
+        return self.line_of_sight(origin, points, seen), polar
 
-    def line_of_sight(self, origin: Tensor, target: Tensor) -> Tensor:
-        """Whether the segment from ``origin [..., 2]`` to ``target [..., 2]`` crosses no occupied cell.
+    def line_of_sight(self, origin: Tensor, target: Tensor, wanted: Tensor | None = None) -> Tensor:
+        """Whether the segment from ``origin [..., 2]`` to ``target [..., 2]`` crosses no occupied cell (and, with
+        ``wanted [...]``, is wanted: False where it is not, whose segments a geometry may leave unread).
 
         The segment is sampled every half cell up to the sensor range (segments are at most that long
-        when it matters); always True on a map without obstacles.
+        when it matters): :meth:`_sight_fractions`; always True on a map without obstacles.
         """
         if not self.has_obstacles:
-            return torch.ones(origin.shape[:-1], dtype=torch.bool, device=self.device)
-        samples = math.ceil(2 * self.sensor_range / self.resolution) + 1
-        fraction = torch.linspace(0.0, 1.0, samples, dtype=self.dtype, device=self.device)
+            clear = torch.ones(origin.shape[:-1], dtype=torch.bool, device=self.device)
+            return clear if wanted is None else clear & wanted
+        fraction = self._sight_fractions()
         points = origin.unsqueeze(-2) + (target - origin).unsqueeze(-2) * fraction.unsqueeze(-1)
-        return ~self.occupied(self._cell_index(points, self.resolution, self.shape)).any(-1)
+        clear = ~self.occupied(self._cell_index(points, self.resolution, self.shape)).any(-1)
+        return clear if wanted is None else clear & wanted
+
+    def _sight_fractions(self) -> Tensor:
+        """``[S]`` where along a segment :meth:`line_of_sight` samples it: every half cell of the sensor range."""
+        samples = math.ceil(2 * self.sensor_range / self.resolution) + 1
+        return torch.linspace(0.0, 1.0, samples, dtype=self.dtype, device=self.device)
 
     # ------------------------------------------------------------ obstacles
     def closest_obstacle(self, pose: Tensor) -> Tensor:
@@ -279,11 +286,12 @@ class WorldMapGeometry(Geometry):
 
     The same results as :class:`MapGeometry` on each world's map, computed on demand: a collision is the test of
     the point's fine cell against the map cells within ``margin`` (``(2 ceil(margin / resolution) + 1)^2``
-    gathers), the closest obstacle the ray table's entries of the bins in view (``fov_bins`` rays of about
-    ``2 range / resolution`` cells each: gathered whole on a GPU, walked to their first hit on the CPU,
-    :class:`aia.envs.ray_walk.RayWalk`). Episodes start in :attr:`start_cells`: the cells of each map whose
-    whole square is collision-free, in the largest 4-connected group of them
-    (:func:`aia.envs.map_generator.start_cells`), so that every start can reach every other.
+    cells), the closest obstacle the ray table's entries of the bins in view (``fov_bins`` rays of about
+    ``2 range / resolution`` cells each), a line of sight the cells of its samples. A GPU gathers every one of
+    those cells; the CPU reads only the cells an answer needs (:class:`aia.envs.cpu_map_queries.CpuMapQueries`).
+    Episodes start in :attr:`start_cells`: the cells of each map whose whole square is collision-free, in the
+    largest 4-connected group of them (:func:`aia.envs.map_generator.start_cells`), so that every start can reach
+    every other.
     ``nearest_obstacle`` (ttenv v1's detour rule) needs a table per map and is not offered.
     """
 
@@ -304,10 +312,11 @@ class WorldMapGeometry(Geometry):
         cols, rows, distances = _ray_offsets(self.num_bins, resolution, sensor_range)
         self._ray_cols, self._ray_rows = cols.to(self.device), rows.to(self.device)
         self._ray_distances = distances.to(self.device, dtype)
-        # On the CPU the rays are walked (aia.envs.ray_walk: 2.4x the env's frames/s at 4,096 worlds), elsewhere
-        # gathered whole.
-        self._walk = (RayWalk(num_worlds, self.shape, cols, rows, self._ray_distances)
-                      if self.device.type == "cpu" else None)
+        # On the CPU the queries read only the cells their answers need (aia.envs.cpu_map_queries), elsewhere they
+        # are gathered whole.
+        self._cpu = (CpuMapQueries(num_worlds, self.shape, resolution, cols, rows, self._ray_distances)
+                     if self.device.type == "cpu" else None)
+        self._fraction = self._sight_fractions()
 
     def set_maps(self, worlds: Tensor, occupancy: Tensor, start_cells: Tensor, row_starts: Tensor | None = None
                  ) -> None:
@@ -319,8 +328,8 @@ class WorldMapGeometry(Geometry):
         self.start_cells[worlds] = start_cells.to(self.device)
         row_starts = start_cells.sum(-1) if row_starts is None else row_starts
         self._start_rows[worlds] = row_starts.to(self.device).cumsum(-1)
-        if self._walk is not None:
-            self._walk.update(self.occupancy, worlds)
+        if self._cpu is not None:
+            self._cpu.update(self.occupancy, worlds)
 
     def draw_maps(self, worlds: Tensor, layouts: RandomObstacles, keys: Tensor) -> None:
         """New maps from ``layouts`` for the worlds ``worlds [K]``, whose episode keys are ``keys [K]``: on the CPU
@@ -331,12 +340,12 @@ class WorldMapGeometry(Geometry):
         row_starts = torch.empty_like(self._start_rows)
         layouts.generate(keys, worlds, (self.occupancy, self.start_cells, row_starts))
         self._start_rows[worlds] = row_starts[worlds].cumsum(-1)
-        self._walk.update(self.occupancy, worlds)
+        self._cpu.update(self.occupancy, worlds)
 
     def select(self, worlds: Tensor) -> WorldMapGeometry:
         view = copy.copy(self)
         view._world_base = worlds.to(self.device) * (self.shape[0] * self.shape[1])
-        view._walk = None  # the walk reads world q // (Q // B): the views' queries are gathered
+        view._cpu = None  # the kernels read world q // (Q // B): the views' queries are gathered
         return view
 
     def grid_map(self, world: int) -> GridMap:
@@ -355,8 +364,8 @@ class WorldMapGeometry(Geometry):
 
     def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
         row, col = self._cell_rows_cols(pose[..., :2], self.resolution, self.shape)
-        if self._walk is not None:
-            return self._walk.hits(self.occupancy, row, col, bins, bound)
+        if self._cpu is not None:
+            return self._cpu.hits(self.occupancy, row, col, bins, bound)
         return torch.minimum(bound, self._gathered_hits(row, col, bins))
 
     def _gathered_hits(self, row: Tensor, col: Tensor, bins: Tensor) -> Tensor:
@@ -371,9 +380,20 @@ class WorldMapGeometry(Geometry):
         """Whether each position ``[B, ..., 2]`` is within ``margin`` of the bounds or of an occupied cell of its
         world's map."""
         row, col = self._cell_rows_cols(xy, self.fine_cell, self.fine_shape)
-        near = _near_occupied(self._occupied_cells, row, col, self.shape, self.resolution, self.margin,
-                              self.supersample)
+        if self._cpu is not None:
+            near = self._cpu.near_occupied(self.occupancy, row, col, self.margin, self.supersample)
+        else:
+            near = _near_occupied(self._occupied_cells, row, col, self.shape, self.resolution, self.margin,
+                                  self.supersample)
         return near | self._outside(xy)
+
+    def line_of_sight(self, origin: Tensor, target: Tensor, wanted: Tensor | None = None) -> Tensor:
+        if self._cpu is None:
+            return super().line_of_sight(origin, target, wanted)
+        origin, target = torch.broadcast_tensors(origin, target)
+        wanted = torch.ones(origin.shape[:-1], dtype=torch.bool) if wanted is None else wanted
+        return self._cpu.line_of_sight(self.occupancy, origin, target, wanted.expand(origin.shape[:-1]),
+                                       self._fraction)
 
     def free_start(self, xy: Tensor) -> Tensor:
         """Whether an episode may place a robot, target or belief at each position ``[B, ..., 2]``: in one of its

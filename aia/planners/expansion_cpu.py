@@ -21,6 +21,8 @@ import math
 import numba
 import numpy as np
 
+from aia.envs.cpu_map_queries import fine_cell_near_occupied
+
 
 def expand(parents: np.ndarray, pose: np.ndarray, cov: np.ndarray, logdet: np.ndarray, cost: np.ndarray,
            world: np.ndarray, world_maps: np.ndarray, positions: np.ndarray, arc_cos: np.ndarray,
@@ -73,27 +75,8 @@ def _near_occupied(occupancy: np.ndarray, x: float, y: float, resolution: float,
     the centre of its fine cell lies within ``margin`` of the bounds or of an occupied cell's square."""
     ny, nx = occupancy.shape
     fine = resolution / supersample
-    fine_col = _cell(x, fine, nx * supersample)
-    fine_row = _cell(y, fine, ny * supersample)
-    px = (fine_col + 0.5) * fine
-    py = (fine_row + 0.5) * fine
-    if px < margin or px > nx * resolution - margin or py < margin or py > ny * resolution - margin:
-        return True
-    col = fine_col // supersample
-    row = fine_row // supersample
-    reach = math.ceil(margin / resolution)
-    for dr in range(-reach, reach + 1):
-        r = min(max(row + dr, 0), ny - 1)
-        y0 = r * resolution
-        dy = max(max(y0 - py, py - (y0 + resolution)), 0.0)
-        for dc in range(-reach, reach + 1):
-            c = min(max(col + dc, 0), nx - 1)
-            if occupancy[r, c]:
-                x0 = c * resolution
-                dx = max(max(x0 - px, px - (x0 + resolution)), 0.0)
-                if dx * dx + dy * dy < margin * margin:
-                    return True
-    return False
+    return fine_cell_near_occupied(occupancy, _cell(y, fine, ny * supersample), _cell(x, fine, nx * supersample),
+                                   resolution, supersample, margin, 0)
 
 
 @numba.njit(cache=True, nogil=True)

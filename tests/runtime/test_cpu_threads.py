@@ -1,41 +1,91 @@
-"""Tests of aia/runtime/cpu_threads.py: the shares cover the batch once, in order, and a forked child's calls run."""
+"""Tests of aia/runtime/cpu_threads.py: a kernel's chunks cover the batch once, on torch's OpenMP team and on
+threads of our own, with every kind of argument read back as packed; a forked child's calls run; bad arguments are
+refused."""
 
 from __future__ import annotations
 
 import multiprocessing
 
+import numba
+import numpy as np
+import pytest
 import torch
 
-from aia.runtime.cpu_threads import in_shares
+from aia.runtime import cpu_threads
+from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, claim, descriptor, integer, real, run_kernel
 
 
-def test_shares_cover_the_batch_in_order():
-    threads = torch.get_num_threads()
+@numba.cfunc(ENTRY, nogil=True)
+def _visit(data):  # pragma: no cover - compiled
+    """visits[i] += 1 and values[i] = i * scale + offset + grid[i % 2, i % 3] + cube[0, 1, i % 2] for each claimed i."""
+    d = descriptor(data)
+    visits, values = array1(d, 0, np.int64), array1(d, 1, np.float64)
+    grid, cube = array2(d, 2, np.float32), array3(d, 3, np.int32)
+    start, stop = claim(d)
+    while start < stop:
+        for i in range(start, stop):
+            visits[i] += 1
+            values[i] = i * real(d, 4) + integer(d, 5) + grid[i % 2, i % 3] + cube[0, 1, i % 2]
+        start, stop = claim(d)
+
+
+def _run(count: int, chunk: int | None, team: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    visits, values = torch.zeros(count, dtype=torch.int64), torch.zeros(count, dtype=torch.float64)
+    grid = torch.arange(6, dtype=torch.float32).view(2, 3)
+    cube = torch.arange(8, dtype=torch.int32).view(2, 2, 2) * 10
+    run_kernel(_visit, count, (visits, values, grid, cube, 0.5, -3), chunk=chunk, team=team)
+    return visits, values
+
+
+@pytest.mark.parametrize("team", [True, False])
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_chunks_cover_the_batch_once_with_the_arguments_as_packed(team, threads):
+    previous = torch.get_num_threads()
     try:
-        torch.set_num_threads(3)
-        shares = in_shares(lambda start, stop: (start, stop), 10)
-        assert shares == [(0, 3), (3, 7), (7, 10)]
-        assert in_shares(lambda start, stop: (start, stop), 2) == [(0, 1), (1, 2)]
-        assert in_shares(lambda start, stop: (start, stop), 0) == []
-    finally:
         torch.set_num_threads(threads)
+        for count, chunk in ((1, None), (7, 1), (7, 3), (1000, None), (1000, 64)):
+            visits, values = _run(count, chunk, team)
+            i = torch.arange(count, dtype=torch.float64)
+            expected = i * 0.5 - 3 + (i % 2) * 3 + (i % 3) + torch.where(i % 2 == 0, 20.0, 30.0)
+            assert torch.equal(visits, torch.ones(count, dtype=torch.int64)), (count, chunk)
+            assert torch.equal(values, expected), (count, chunk)
+        visits, _ = _run(0, None, team)
+        assert visits.numel() == 0
+    finally:
+        torch.set_num_threads(previous)
+
+
+def test_the_team_is_torch_openmp_runtime():
+    """torch's CPU wheels run on OpenMP (libgomp), which exports GOMP_parallel: the team is used there."""
+    assert "OpenMP" in torch.__config__.parallel_info()
+    assert cpu_threads._TEAM is not None
 
 
 def _child(queue) -> None:
-    queue.put(in_shares(lambda start, stop: stop - start, 8))
+    visits, _ = _run(100, 7, team=None)
+    queue.put((cpu_threads._FORKED, int(visits.sum())))
 
 
-def test_a_forked_child_gets_threads_of_its_own():
-    """The parent's pool exists before the fork; the child's calls must not wait on threads it does not have."""
-    threads = torch.get_num_threads()
+def test_a_forked_child_runs_in_threads_of_its_own():
+    """The parent's team and pool exist before the fork; the child's calls must not wait on threads it does not
+    have, nor use its copy of the OpenMP runtime."""
+    previous = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
-        assert in_shares(lambda start, stop: stop - start, 8) == [4, 4]
+        assert int(_run(100, 7, team=None)[0].sum()) == 100
+        assert int(_run(100, 7, team=False)[0].sum()) == 100
         context = multiprocessing.get_context("fork")
         queue = context.Queue()
         child = context.Process(target=_child, args=(queue,))
         child.start()
-        child.join(timeout=20)
-        assert child.exitcode == 0 and queue.get(timeout=1) == [4, 4]
+        child.join(timeout=30)
+        assert child.exitcode == 0 and queue.get(timeout=1) == (True, 100)
     finally:
-        torch.set_num_threads(threads)
+        torch.set_num_threads(previous)
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(ValueError, match="contiguous CPU tensors"):
+        run_kernel(_visit, 4, (torch.zeros(4, 2).t(),))
+    with pytest.raises(ValueError, match="at most 24 arguments"):
+        run_kernel(_visit, 4, tuple(range(25)))

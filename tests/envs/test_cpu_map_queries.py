@@ -1,5 +1,6 @@
-"""Tests of aia/envs/ray_walk.py: the walked rays equal the gathered ones ray by ray, the closest obstacle equals
-the gathers' to the bit (eager and compiled), and the block distances equal a brute-force chessboard distance."""
+"""Tests of aia/envs/cpu_map_queries.py: the walked rays equal the gathered ones ray by ray, the closest obstacle equals
+the gathers' to the bit (eager and compiled), the block distances equal a brute-force chessboard distance, and the
+collisions and lines of sight equal the fixed-map grid and the gathered samples."""
 
 from __future__ import annotations
 
@@ -9,9 +10,10 @@ import numpy as np
 import torch
 
 from aia.envs.config import RandomMapConfig
+from aia.envs.cpu_map_queries import BLOCK
 from aia.envs.map_generator import RandomObstacles
-from aia.envs.ray_walk import BLOCK
-from aia.envs.sensing import WorldMapGeometry
+from aia.envs.maps import GridMap
+from aia.envs.sensing import MapGeometry, WorldMapGeometry
 
 MARGIN, RANGE, FOV, SPACING = 0.5, 10.0, math.radians(120), 0.05
 
@@ -46,7 +48,7 @@ def test_each_walked_ray_is_the_gathered_ray():
     row, col = geometry._cell_rows_cols(pose[..., :2], geometry.resolution, geometry.shape)
     bins = _bins(geometry, pose)
     gathered = geometry._gathered_hits(row, col, bins)
-    walked = torch.stack([geometry._walk.hits(geometry.occupancy, row, col, bins[..., f:f + 1],
+    walked = torch.stack([geometry._cpu.hits(geometry.occupancy, row, col, bins[..., f:f + 1],
                                               torch.full((6, 400, 1), math.inf))[..., 0]
                           for f in range(bins.shape[-1])], -1)
     assert torch.equal(walked, gathered)
@@ -60,7 +62,7 @@ def test_closest_obstacle_walked_equals_gathered_eager_and_compiled():
     geometry, pose = _maps()
     walked = geometry.closest_obstacle(pose)
     walked_compiled = torch.compile(geometry.closest_obstacle, fullgraph=True, dynamic=False)(pose)
-    geometry._walk = None
+    geometry._cpu = None
     gathered = geometry.closest_obstacle(pose)
     gathered_compiled = torch.compile(geometry.closest_obstacle, fullgraph=True, dynamic=False)(pose)
     assert torch.equal(walked, gathered) and torch.equal(walked_compiled, gathered_compiled)
@@ -80,6 +82,47 @@ def test_block_distances_are_chessboard_distances_between_blocks():
     for b in range(B):
         to_occupied = chessboard[:, occupied_blocks[b].flatten()]
         expected = to_occupied.min(-1).values if to_occupied.shape[1] else torch.full((nby * nbx,), 255)
-        assert np.array_equal(geometry._walk.block_distance[b].flatten().numpy(), expected.clamp_max(255).numpy())
+        assert np.array_equal(geometry._cpu.block_distance[b].flatten().numpy(), expected.clamp_max(255).numpy())
     # no occupied block; one at block (12, 12), the farthest (25, 25)
-    assert geometry._walk.block_distance[0].eq(255).all() and geometry._walk.block_distance[1].max() == 13
+    assert geometry._cpu.block_distance[0].eq(255).all() and geometry._cpu.block_distance[1].max() == 13
+
+
+def test_collision_of_every_fine_cell_is_the_fixed_maps_grid():
+    """At the centre of every fine cell of each map, the kernel's collision is the fixed-map geometry's collision
+    grid on that map (the points on the margin's edge included)."""
+    geometry, _ = _maps()
+    ny, nx = geometry.fine_shape
+    rows, cols = torch.meshgrid(torch.arange(ny), torch.arange(nx), indexing="ij")
+    centres = (torch.stack((cols, rows), -1).reshape(-1, 2).float() + 0.5) * geometry.fine_cell
+    collision = geometry.in_collision(centres.expand(6, -1, -1))
+    for b in range(6):
+        fixed = MapGeometry(GridMap("world", 0.2, geometry.occupancy[b]), MARGIN, RANGE, FOV, SPACING, 4)
+        assert torch.equal(collision[b], fixed.collision.flatten()), b
+    assert 0.05 < collision[3].float().mean() < 0.95
+
+
+def test_line_of_sight_equals_the_gathered_samples():
+    """Segments of every length from every kind of place: the kernel's answer is the gathered samples' where
+    wanted, False elsewhere."""
+    geometry, pose = _maps()
+    gen = torch.Generator().manual_seed(5)
+    target = pose[..., :2] + (torch.rand(6, 400, 2, generator=gen) * 2 - 1) * torch.rand(6, 400, 1, generator=gen) * 8
+    wanted = torch.rand(6, 400, generator=gen) < 0.8
+    kernel = geometry.line_of_sight(pose[..., :2], target, wanted)
+    geometry._cpu = None
+    gathered = geometry.line_of_sight(pose[..., :2], target)
+    assert torch.equal(kernel, gathered & wanted)
+    assert 0.1 < gathered[3].float().mean() < 0.9
+
+
+def test_block_cells_are_the_occupied_cells_bits():
+    geometry, _ = _maps()
+    occ = geometry.occupancy
+    B, ny, nx = occ.shape
+    nby, nbx = math.ceil(ny / BLOCK), math.ceil(nx / BLOCK)
+    padded = torch.zeros(B, nby * BLOCK, nbx * BLOCK, dtype=torch.bool)
+    padded[:, :ny, :nx] = occ
+    bits = padded.view(B, nby, BLOCK, nbx, BLOCK).permute(0, 1, 3, 2, 4).reshape(B, nby, nbx, BLOCK * BLOCK)
+    expected = (bits.long() << torch.arange(BLOCK * BLOCK)).sum(-1)
+    assert torch.equal(geometry._cpu.block_cells.long() & 0xFFFF, expected)
+    assert (expected >= 1 << 15).any()  # the sign bit in use
