@@ -61,6 +61,7 @@ class CpuMapQueries:
         self.cols, self.rows = ray_cols.cpu().to(torch.int16), ray_rows.cpu().to(torch.int16)
         self.first_col = _first_reaching(ray_cols.abs(), self.lengths).to(torch.int16)
         self.first_row = _first_reaching(ray_rows.abs(), self.lengths).to(torch.int16)
+        self.reach_distance = _reach_distances(self.distances, self.lengths, self.first_col, self.first_row)
         blocks = (math.ceil(shape[0] / BLOCK), math.ceil(shape[1] / BLOCK))
         self.block_distance = torch.zeros(num_worlds, *blocks, dtype=torch.uint8)
         self.block_cells = torch.zeros(num_worlds, *blocks, dtype=torch.int16)
@@ -79,7 +80,7 @@ class CpuMapQueries:
         F = bins.shape[-1]
         out = ray_walk(occupancy, self.block_distance, self.block_cells, row.reshape(-1), col.reshape(-1),
                        bins.reshape(-1, F), bound.reshape(-1, F), self.cols, self.rows, self.distances, self.lengths,
-                       self.first_col, self.first_row)
+                       self.first_col, self.first_row, self.reach_distance)
         return out.view(bound.shape)
 
     def near_occupied(self, occupancy: Tensor, fine_row: Tensor, fine_col: Tensor, margin: float,
@@ -112,16 +113,25 @@ def _first_reaching(offsets: Tensor, lengths: Tensor) -> Tensor:
     return first
 
 
+def _reach_distances(distances: Tensor, lengths: Tensor, first_col: Tensor, first_row: Tensor) -> Tensor:
+    """``[A]``: for each chessboard radius ``a``, the nearest any ray enters its first cell beyond ``a`` of its start
+    (``inf`` where none has one): a bound on every ray's hit from a cell whose free radius is ``a``."""
+    reach = min(first_col.shape[1], first_row.shape[1])
+    index = torch.minimum(first_col[:, :reach], first_row[:, :reach]).long()  # [num_bins, A]
+    entry = torch.gather(distances, 1, index.clamp_max(distances.shape[1] - 1))
+    return torch.where(index < lengths[:, None], entry, math.inf).amin(0)
+
+
 @torch.library.custom_op("aia::ray_walk", mutates_args=())
 def ray_walk(occupancy: Tensor, block_distance: Tensor, block_cells: Tensor, row: Tensor, col: Tensor, bins: Tensor,
              bound: Tensor, cols: Tensor, rows: Tensor, distances: Tensor, lengths: Tensor, first_col: Tensor,
-             first_row: Tensor) -> Tensor:
+             first_row: Tensor, reach_distance: Tensor) -> Tensor:
     """:meth:`CpuMapQueries.hits` of ``Q`` queries (``row``, ``col`` ``[Q]``, ``bins``, ``bound`` ``[Q, F]``), query
     ``q`` in the map of world ``q // (Q // B)``: an operator of its own, opaque to ``torch.compile`` (a compiled
     step calls it)."""
     out = torch.empty_like(bound)
     args = tuple(t.contiguous() for t in (occupancy, block_distance, block_cells, row, col, bins, bound, cols, rows,
-                                          distances, lengths, first_col, first_row))
+                                          distances, lengths, first_col, first_row, reach_distance))
     entry = _walk_f32 if bound.dtype == torch.float32 else _walk_f64
     run_kernel(entry, row.shape[0], (*args, row.shape[0] // occupancy.shape[0], out))
     return out
@@ -129,7 +139,7 @@ def ray_walk(occupancy: Tensor, block_distance: Tensor, block_cells: Tensor, row
 
 @ray_walk.register_fake
 def _(occupancy, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths, first_col,
-      first_row):
+      first_row, reach_distance):
     return torch.empty_like(bound)
 
 
@@ -212,7 +222,7 @@ def _block_distances(occupied, worlds, out, cells):  # pragma: no cover - compil
 
 @numba.njit(cache=True, nogil=True)
 def _walk(occupied, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths, first_col,
-          first_row, per_world, out, start, stop):  # pragma: no cover - compiled
+          first_row, reach_distance, per_world, out, start, stop):  # pragma: no cover - compiled
     ny, nx = occupied.shape[1], occupied.shape[2]
     for q in range(start, stop):
         w = q // per_world
@@ -220,8 +230,12 @@ def _walk(occupied, block_distance, block_cells, row, col, bins, bound, cols, ro
         best = bound[q, 0]
         for f in range(bins.shape[1]):
             best = min(best, bound[q, f])
-        # Every ray starts in the robot's cell: its free radius, once for all of them.
+        # Every ray starts in the robot's cell: its free radius, once for all of them. When every ray's first cell
+        # beyond it lies farther than the nearest value, each keeps its bound.
         origin_radius = free_radius(block_distance, w, r0, c0, ny, nx)
+        if origin_radius < reach_distance.shape[0] and reach_distance[origin_radius] > best:
+            out[q] = bound[q]
+            continue
         for f in range(bins.shape[1]):
             b = bins[q, f]
             value = bound[q, f]
@@ -388,11 +402,11 @@ def _walk_share(data, dtype):  # pragma: no cover - compiled
     row, col, bins, bound = array1(d, 3, np.int64), array1(d, 4, np.int64), array2(d, 5, np.int64), array2(d, 6, dtype)
     cols, rows, distances = array2(d, 7, np.int16), array2(d, 8, np.int16), array2(d, 9, dtype)
     lengths, first_col, first_row = array1(d, 10, np.int64), array2(d, 11, np.int16), array2(d, 12, np.int16)
-    per_world, out = integer(d, 13), array2(d, 14, dtype)
+    reach_distance, per_world, out = array1(d, 13, dtype), integer(d, 14), array2(d, 15, dtype)
     start, stop = claim(d)
     while start < stop:
         _walk(occupied, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths, first_col,
-              first_row, per_world, out, start, stop)
+              first_row, reach_distance, per_world, out, start, stop)
         start, stop = claim(d)
 
 
