@@ -14,6 +14,12 @@ the cells the sensor's rays cross: rays every ``ray_spacing`` over the field of 
 cells from the robot's cell to the cell at the sensor's range, up to its first occupied or outside cell. A world
 that resets starts from zeros and marks its first view (ttenv's ``reset_visit_freq_map``).
 
+The decay is kept lazily (:class:`Visits`): each world's clock sums the logarithms of its decays, each cell holds
+the clock of its last visit, and a cell's frequency is ``exp(clock - stamp)``, read only for the cells an image
+shows. Multiplying every cell of every world each step moved 0.5 GB a step at 4,096 worlds of 181 x 181 cells;
+the lazy frequencies equal ttenv's repeated products (float64 numpy) to the rounding of the dtype. On the CPU
+the rays are walked by a numba kernel to their first occupied cell (:func:`mark_visits`).
+
 A point lies in the cell ``floor(xy / resolution)``; ttenv rounds ``xy / resolution - 0.5`` half away from zero
 (half to even at the rays' ends), which differs only for points exactly on a cell boundary.
 """
@@ -21,8 +27,10 @@ A point lies in the cell ``floor(xy / resolution)``; ttenv rounds ``xy / resolut
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
+import numba
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torch import Tensor
@@ -31,6 +39,7 @@ from torchrl.envs.transforms import Transform
 
 from aia.envs.config import LOCAL_MAP_CHANNELS
 from aia.runtime.compiling import compiled
+from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, claim, descriptor, integer, run_kernel
 
 if TYPE_CHECKING:
     from aia.envs.sensing import Geometry
@@ -43,6 +52,31 @@ VISIT_SQUARES = ((-1.5, 0.0), (0.5, 0.0), (-0.5, 1.0), (-0.5, -1.0))
 # ttenv: the visit frequencies fall to this fraction while a belief at the mean belief speed crosses the sensor range.
 VISIT_DECAY = 0.7
 OBSTACLE_VISIT = 2.0  # ttenv's visit value of an occupied cell (then shifted by -1 with the others)
+
+
+class Visits(NamedTuple):
+    """Each world's visit frequencies, kept lazily: cell ``i`` of world ``b`` holds ``exp(clock[b] - stamps[b, i])``
+    (``stamps [B, ny * nx + 1]``: each world's grid, flat, then one cell for the rays' other cells; ``inf`` for
+    a cell never visited; ``clock [B]``: the sum of the logarithms of the world's decays)."""
+
+    stamps: Tensor
+    clock: Tensor
+
+    @classmethod
+    def empty(cls, worlds: int, cells: int, device: torch.device | str) -> Visits:
+        """``worlds`` worlds' grids of ``cells`` cells, never visited; in float64, so that a clock far from 0 after a
+        long episode still resolves a step's decay."""
+        return cls(torch.full((worlds, cells + 1), math.inf, dtype=torch.float64, device=device),
+                   torch.zeros(worlds, dtype=torch.float64, device=device))
+
+    def frequencies(self) -> Tensor:
+        """``[B, ny * nx + 1]`` the visit frequencies."""
+        return torch.exp(self.clock[:, None] - self.stamps)
+
+    def reset(self, worlds: Tensor) -> None:
+        """Clear the worlds ``worlds [B]`` (bool): never visited, their clocks at 0."""
+        self.stamps.masked_fill_(worlds.unsqueeze(-1), math.inf)
+        self.clock.masked_fill_(worlds, 0.0)
 
 
 class LocalMap(Transform):
@@ -71,13 +105,13 @@ class LocalMap(Transform):
             geometry.device, geometry.dtype)
         # the most cells a ray crosses along its longer axis, its first included
         self.ray_cells = math.floor(geometry.sensor_range / geometry.resolution) + 2
-        self._visits: Tensor | None = None  # [B, ny * nx + 1]: each world's grid, then one cell for the rays' misses
+        self._visits: Visits | None = None
         self._map_images = compiled(map_images) if compile else map_images
 
     @property
     def visits(self) -> Tensor:
         """``[B, ny, nx]`` each world's visit frequencies (row = y cell)."""
-        return self._visits[:, :-1].unflatten(1, self.geometry.shape)
+        return self._visits.frequencies()[:, :-1].unflatten(1, self.geometry.shape)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         pose = next_tensordict.get("robot_pose")
@@ -93,9 +127,9 @@ class LocalMap(Transform):
         if self.channels > 1:
             reset = _reset_worlds(tensordict, pose)
             if self._visits is None:
-                cells = self.geometry.shape[0] * self.geometry.shape[1] + 1
-                self._visits = torch.zeros(pose.shape[0], cells, dtype=pose.dtype, device=pose.device)
-            self._visits.masked_fill_(reset.unsqueeze(-1), 0.0)
+                cells = self.geometry.shape[0] * self.geometry.shape[1]
+                self._visits = Visits.empty(pose.shape[0], cells, pose.device)
+            self._visits.reset(reset)
             mark_visits(self._visits, self.geometry, pose, reset, 1.0, self.ray_angles, self.ray_cells)
         tensordict_reset.set(self.out_keys[0], self._images(pose))
         return tensordict_reset
@@ -141,10 +175,9 @@ def flat_cells(col: Tensor, row: Tensor, geometry: Geometry) -> tuple[Tensor, Te
 
 
 def map_images(geometry: Geometry, pose: Tensor, squares: Tensor, im_size: int,
-               visits: Tensor | None = None) -> Tensor:
-    """``[B, C, H, W]`` the occupancy image of ``squares[0]`` and, with ``visits [B, ny * nx (+ 1)]`` (each
-    world's grid, flat), the visit-frequency images of ``squares[1:]`` around ``pose [B, 3]``, in ttenv's values
-    (module docstring)."""
+               visits: Visits | None = None) -> Tensor:
+    """``[B, C, H, W]`` the occupancy image of ``squares[0]`` and, with ``visits`` (each world's), the
+    visit-frequency images of ``squares[1:]`` around ``pose [B, 3]``, in ttenv's values (module docstring)."""
     x, y = square_points(pose, squares, im_size, geometry.resolution)
     index, inside = flat_cells(torch.floor(x / geometry.resolution).long(), torch.floor(y / geometry.resolution).long(),
                                geometry)
@@ -154,7 +187,8 @@ def map_images(geometry: Geometry, pose: Tensor, squares: Tensor, im_size: int,
     width, height = geometry.size - geometry.margin
     in_bound = (x >= geometry.margin) & (x <= width) & (y >= geometry.margin) & (y <= height)
     in_bound[:, 0] = False  # the occupancy square
-    frequency = torch.gather(visits, 1, index.flatten(1)).view_as(index)
+    stamps = torch.gather(visits.stamps, 1, index.flatten(1)).view_as(index)
+    frequency = torch.exp(visits.clock.view(-1, 1, 1, 1) - stamps).to(pose.dtype)
     return torch.where(blocked, OBSTACLE_VISIT - 1.0, torch.where(in_bound, frequency - 1.0, -1.0))
 
 
@@ -188,19 +222,72 @@ def bresenham(start: Tensor, end: Tensor, length: int) -> tuple[Tensor, Tensor, 
     return x, y, along <= major
 
 
-def mark_visits(visits: Tensor, geometry: Geometry, pose: Tensor, worlds: Tensor, decay: Tensor | float,
+def mark_visits(visits: Visits, geometry: Geometry, pose: Tensor, worlds: Tensor, decay: Tensor | float,
                 ray_angles: Tensor, ray_cells: int) -> None:
-    """Decay the visit frequencies ``visits [B, ny * nx + 1]`` of the ``worlds [B]`` (bool) by ``decay`` and set to
-    1 the cells their sensor's rays (``ray_angles [R]`` from the heading, to the sensor's range) cross before
-    their first occupied or outside cell, in place. The last entry of each row takes the rays' other cells."""
+    """Decay the visit frequencies of the ``worlds [B]`` (bool) by ``decay`` (``[B]`` or a number) and set to 1 the
+    cells their sensor's rays (``ray_angles [R]`` from the heading, to the sensor's range) cross before their first
+    occupied or outside cell, in place."""
     resolution = geometry.resolution
     start = torch.floor(pose[:, :2] / resolution).long()
     angle = pose[:, 2:3] + ray_angles
     reach = geometry.sensor_range * torch.stack((torch.cos(angle), torch.sin(angle)), dim=-1)
     end = torch.floor((pose[:, None, :2] + reach) / resolution).long()
+    decay = torch.as_tensor(decay, dtype=visits.clock.dtype, device=visits.clock.device)
+    visits.clock.add_(torch.where(worlds, torch.log(decay), 0.0))
+    if pose.device.type == "cpu":
+        occupancy = geometry.occupancy if geometry.occupancy.ndim == 3 else geometry.occupancy[None]
+        run_kernel(_mark_entry, pose.shape[0], (occupancy.contiguous(), start.contiguous(), end.contiguous(),
+                                                worlds.contiguous(), ray_cells, visits.stamps, visits.clock))
+    else:
+        stamp_rays(visits, geometry, start, end, worlds, ray_cells)
+
+
+def stamp_rays(visits: Visits, geometry: Geometry, start: Tensor, end: Tensor, worlds: Tensor, ray_cells: int
+               ) -> None:
+    """Stamp with their world's clock the cells of the rays from the cells ``start [B, 2]`` to ``end [B, R, 2]``
+    (their Bresenham lines of at most ``ray_cells`` cells) before their first occupied or outside cell, for the
+    ``worlds [B]``: in tensor ops, every cell of every ray gathered (what a GPU runs; the CPU walks them)."""
     x, y, on_line = bresenham(start.unsqueeze(1).expand_as(end), end, ray_cells)
     index, inside = flat_cells(x, y, geometry)
     clear = (~inside | geometry.occupied(index)).cumsum(-1) == 0
     seen = on_line & clear & worlds[:, None, None]
-    visits.mul_(torch.where(worlds, torch.as_tensor(decay, dtype=visits.dtype, device=visits.device), 1.0)[:, None])
-    visits.scatter_(1, torch.where(seen, index, visits.shape[1] - 1).flatten(1), 1.0)
+    cells = torch.where(seen, index, visits.stamps.shape[1] - 1).flatten(1)
+    visits.stamps.scatter_(1, cells, visits.clock[:, None].expand_as(cells))
+
+
+@numba.njit(cache=True, nogil=True)
+def _mark_rays(occupancy, start, end, worlds, ray_cells, stamps, clock, first, last):  # pragma: no cover - compiled
+    """For each world ``b`` in ``first..last - 1`` that ``worlds`` marks: ``stamps[b]`` of the cells of each ray's
+    Bresenham line from ``start[b]`` to ``end[b, r]`` (:func:`bresenham`, at most ``ray_cells`` cells) before its
+    first occupied or outside cell set to ``clock[b]``; the map ``occupancy[b]`` (or ``[0]``, one for all)."""
+    ny, nx = occupancy.shape[1], occupancy.shape[2]
+    for b in range(first, last):
+        if not worlds[b]:
+            continue
+        grid = occupancy[b if occupancy.shape[0] > 1 else 0]
+        sx, sy = start[b, 0], start[b, 1]
+        for r in range(end.shape[1]):
+            dx, dy = end[b, r, 0] - sx, end[b, r, 1] - sy
+            step_x, step_y = (1 if dx >= 0 else -1), (1 if dy >= 0 else -1)
+            steep = abs(dy) > abs(dx)
+            major, minor = (abs(dy), abs(dx)) if steep else (abs(dx), abs(dy))
+            for along in range(min(major + 1, ray_cells)):
+                across = -((major // 2 - along * minor) // max(major, 1))
+                x = sx + (across if steep else along) * step_x
+                y = sy + (along if steep else across) * step_y
+                if x < 0 or x >= nx or y < 0 or y >= ny or grid[y, x]:
+                    break
+                stamps[b, y * nx + x] = clock[b]
+
+
+@numba.cfunc(ENTRY, nogil=True, cache=True)
+def _mark_entry(data):  # pragma: no cover - compiled
+    """:func:`_mark_rays` of ``(occupancy, start, end, worlds, ray_cells, stamps, clock)``, chunk by chunk of the
+    worlds."""
+    d = descriptor(data)
+    occupancy, start, end = array3(d, 0, np.bool_), array2(d, 1, np.int64), array3(d, 2, np.int64)
+    worlds, stamps, clock = array1(d, 3, np.bool_), array2(d, 5, np.float64), array1(d, 6, np.float64)
+    first, last = claim(d)
+    while first < last:
+        _mark_rays(occupancy, start, end, worlds, integer(d, 4), stamps, clock, first, last)
+        first, last = claim(d)

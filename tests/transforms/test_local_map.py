@@ -22,9 +22,11 @@ from aia.transforms.local_map import (
     OCCUPANCY_SQUARE,
     VISIT_SQUARES,
     LocalMap,
+    Visits,
     bresenham,
     map_images,
     mark_visits,
+    stamp_rays,
     visit_decay,
 )
 
@@ -69,7 +71,8 @@ def test_visit_images_by_hand() -> None:
     y 2..-1, in front x 6..9, behind x -2..1. Outside the map or occupied +1; closer than the margin (1 m) to the
     bounds -1; else the visit frequency - 1 (here ``v(x, y) = (8 y + x) / 100 - 1``)."""
     geometry = _geometry(_small_map())
-    visits = (torch.arange(64, dtype=F64) / 100).reshape(1, 64)  # row = y
+    frequencies = (torch.arange(64, dtype=F64) / 100).reshape(1, 64)  # row = y
+    visits = Visits(-torch.log(frequencies), torch.zeros(1, dtype=F64))
 
     def v(x: int, y: int) -> float:
         return (8 * y + x) / 100 - 1
@@ -124,16 +127,16 @@ def test_each_world_image_equals_its_own_map_alone() -> None:
     poses = torch.rand(3, 3, 3, generator=generator, dtype=F64) * torch.tensor([6.0, 6.0, 2 * math.pi]) + 1.0
     decays = torch.rand(3, 3, generator=generator, dtype=F64)
     every = torch.ones(3, dtype=torch.bool)
-    visits = torch.zeros(3, 65, dtype=F64)
+    visits = Visits.empty(3, 64, "cpu")
     for pose, decay in zip(poses, decays, strict=True):
         mark_visits(visits, world_geometry, pose, every, decay, transform.ray_angles, transform.ray_cells)
     images = map_images(world_geometry, poses[-1], SQUARES, 4, visits)
     for b in range(3):
         alone = _geometry(GridMap(f"world {b}", 1.0, maps[b]))
-        own = torch.zeros(1, 65, dtype=F64)
+        own = Visits.empty(1, 64, "cpu")
         for pose, decay in zip(poses[:, b : b + 1], decays[:, b : b + 1], strict=True):
             mark_visits(own, alone, pose, every[:1], decay, transform.ray_angles, transform.ray_cells)
-        torch.testing.assert_close(visits[b], own[0], rtol=0, atol=0)
+        torch.testing.assert_close(visits.frequencies()[b], own.frequencies()[0], rtol=0, atol=0)
         expected = map_images(alone, poses[-1, b : b + 1], SQUARES, 4, own)
         torch.testing.assert_close(images[b], expected[0], rtol=0, atol=0)
 
@@ -143,11 +146,11 @@ def test_visits_decay_then_the_seen_cells_are_one() -> None:
     at (1.5, 1.5) facing +x sees (2..5, 1) up to the obstacle-free row's end, not past the occupied (6, 3)."""
     geometry = _geometry(_small_map())
     transform = LocalMap(geometry, "occupancy_visits", im_size=4)
-    visits = torch.full((1, 65), 0.5, dtype=F64)
+    visits = Visits(torch.full((1, 65), math.log(2.0), dtype=F64), torch.zeros(1, dtype=F64))  # all at 0.5
     mark_visits(visits, geometry, torch.tensor([[1.5, 1.5, 0.0]], dtype=F64), torch.tensor([True]),
                 torch.tensor([0.4], dtype=F64), transform.ray_angles, transform.ray_cells)
-    grid = visits[0, :-1].reshape(8, 8)
-    assert set(grid.unique().tolist()) == {0.2, 1.0}
+    grid = visits.frequencies()[0, :-1].reshape(8, 8)
+    assert ((grid == 1.0) | (grid - 0.2).abs().lt(1e-15)).all() and (grid == 1.0).sum() > 0
     assert (grid[1, 1:6] == 1.0).all() and grid[4, 3] == 0.2 and grid[3, 6] == 0.2  # occupied cells stay unseen
     assert visit_decay(torch.tensor([[[3.0, 4.0], [0.0, 0.0]]]), 0.5, 10.0).item() == pytest.approx(0.7**0.125)
     assert visit_decay(None, 0.5, 10.0) == 1.0
@@ -168,10 +171,10 @@ def test_env_partial_reset_clears_only_the_reset_worlds() -> None:
     before = transform.visits.clone()
     reset = torch.tensor([[True], [False], [False]])
     out = env.reset(rollout[:, -1]["next"].clone().set("_reset", reset))
-    fresh = torch.zeros(1, transform.visits[0].numel() + 1)
+    fresh = Visits.empty(1, transform.visits[0].numel(), "cpu")
     mark_visits(fresh, env.geometry, out["robot_pose"][:1], torch.tensor([True]), 1.0, transform.ray_angles,
                 transform.ray_cells)
-    torch.testing.assert_close(transform.visits[0].flatten(), fresh[0, :-1], rtol=0, atol=0)
+    torch.testing.assert_close(transform.visits[0].flatten(), fresh.frequencies()[0, :-1], rtol=0, atol=0)
     torch.testing.assert_close(transform.visits[1:], before[1:], rtol=0, atol=0)
 
 
@@ -185,3 +188,30 @@ def test_config_refuses_im_size_below_one_and_presets_set_the_layout() -> None:
     for preset, layout in (("ttenv_v4", "occupancy"), ("ttenv_v5", "occupancy_visits")):
         features = load_env_config(preset).features
         assert (features.local_map, features.im_size) == (layout, 28)
+
+
+def test_the_cpu_kernel_stamps_the_gathered_rays_cells() -> None:
+    """mark_visits on the CPU walks each ray to its first occupied or outside cell: the same stamps as every ray's
+    cells gathered (stamp_rays), on per-world maps and on one map, from inside, at and outside the bounds."""
+    generator = torch.Generator().manual_seed(4)
+    maps = torch.rand(5, 12, 9, generator=generator) < 0.1
+    worlds = WorldMapGeometry(5, (9.0, 12.0), 1.0, margin=1.0, sensor_range=6.0, fov=2.0, ray_spacing=0.05,
+                              dtype=F64)
+    worlds.occupancy.copy_(maps)
+    fixed = _geometry(GridMap("one", 1.0, maps[0]))
+    transform = LocalMap(worlds, "occupancy_visits", im_size=4)
+    for geometry in (worlds, fixed):
+        pose = torch.rand(5, 3, generator=generator, dtype=F64) * torch.tensor([9.0, 12.0, 2 * math.pi])
+        pose[0, :2] = torch.tensor([-0.5, 12.5], dtype=F64)  # outside: nothing marked
+        marked = torch.tensor([True, True, False, True, True])
+        walked, gathered = Visits.empty(5, 108, "cpu"), Visits.empty(5, 108, "cpu")
+        walked.clock.fill_(-0.5)
+        gathered.clock.fill_(-0.5)
+        mark_visits(walked, geometry, pose, marked, 1.0, transform.ray_angles, transform.ray_cells)
+        start = torch.floor(pose[:, :2]).long()
+        angle = pose[:, 2:3] + transform.ray_angles
+        reach = geometry.sensor_range * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
+        end = torch.floor(pose[:, None, :2] + reach).long()
+        stamp_rays(gathered, geometry, start, end, marked, transform.ray_cells)
+        assert torch.equal(walked.stamps[:, :-1], gathered.stamps[:, :-1])
+        assert torch.isfinite(walked.stamps[:, :-1]).sum(-1).gt(0).sum() >= 2 and not walked.stamps[2].isfinite().any()
