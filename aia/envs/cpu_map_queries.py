@@ -33,7 +33,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, claim, descriptor, integer, real, run_kernel
+from aia.runtime.cpu_threads import (
+    ENTRY,
+    array1,
+    array2,
+    array3,
+    descriptor,
+    in_chunks,
+    in_float_dtype,
+    integer,
+    real,
+    run_kernel,
+)
 
 # Squares of 4 x 4 cells (2 ** BLOCK_SHIFT): 46 x 46 of them on a 181 x 181 map; finer squares prove more cells
 # free but cost their map-time distance field more, coarser ones prove fewer. A constant of the kernels, so that
@@ -132,8 +143,7 @@ def ray_walk(occupancy: Tensor, block_distance: Tensor, block_cells: Tensor, row
     out = torch.empty_like(bound)
     args = tuple(t.contiguous() for t in (occupancy, block_distance, block_cells, row, col, bins, bound, cols, rows,
                                           distances, lengths, first_col, first_row, reach_distance))
-    entry = _walk_f32 if bound.dtype == torch.float32 else _walk_f64
-    run_kernel(entry, row.shape[0], (*args, row.shape[0] // occupancy.shape[0], out))
+    run_kernel(_walk_entry, row.shape[0], (*args, row.shape[0] // occupancy.shape[0], out, bound.element_size()))
     return out
 
 
@@ -166,9 +176,9 @@ def line_of_sight(occupancy: Tensor, block_cells: Tensor, origin: Tensor, target
     """:meth:`CpuMapQueries.line_of_sight` of ``Q`` segments (``origin``, ``target`` ``[Q, 2]``, ``wanted [Q]``),
     segment ``q`` in the map of world ``q // (Q // B)``, with the cell size ``cell [1]`` in their dtype."""
     out = torch.empty(wanted.shape, dtype=torch.bool)
-    entry = _sight_f32 if origin.dtype == torch.float32 else _sight_f64
-    run_kernel(entry, wanted.shape[0], (occupancy.contiguous(), block_cells, origin.contiguous(),
-                                        target.contiguous(), wanted.contiguous(), fraction.contiguous(), cell, out))
+    run_kernel(_sight_entry, wanted.shape[0], (occupancy.contiguous(), block_cells, origin.contiguous(),
+                                               target.contiguous(), wanted.contiguous(), fraction.contiguous(), cell,
+                                               out, origin.element_size()))
     return out
 
 
@@ -218,6 +228,12 @@ def _block_distances(occupied, worlds, out, cells):  # pragma: no cover - compil
         for i in range(nby):
             for j in range(nbx):
                 out[w, i, j] = min(far[i + 1, j + 1], 255)
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_distances_of(occupied, worlds, out, cells, start, stop):  # pragma: no cover - compiled
+    """:func:`_block_distances` of the worlds ``worlds[start:stop]``."""
+    _block_distances(occupied, worlds[start:stop], out, cells)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -386,11 +402,7 @@ def _block_distances_entry(data):  # pragma: no cover - compiled
     """:func:`_block_distances` of the arguments ``(occupied, worlds, out)``, chunk by chunk of ``worlds``."""
     d = descriptor(data)
     occupied, worlds, out = array3(d, 0, np.bool_), array1(d, 1, np.int64), array3(d, 2, np.uint8)
-    cells = array3(d, 3, np.int16)
-    start, stop = claim(d)
-    while start < stop:
-        _block_distances(occupied, worlds[start:stop], out, cells)
-        start, stop = claim(d)
+    in_chunks(d, _block_distances_of, (occupied, worlds, out, array3(d, 3, np.int16)))
 
 
 @numba.njit(inline="always", nogil=True)
@@ -403,21 +415,14 @@ def _walk_share(data, dtype):  # pragma: no cover - compiled
     cols, rows, distances = array2(d, 7, np.int16), array2(d, 8, np.int16), array2(d, 9, dtype)
     lengths, first_col, first_row = array1(d, 10, np.int64), array2(d, 11, np.int16), array2(d, 12, np.int16)
     reach_distance, per_world, out = array1(d, 13, dtype), integer(d, 14), array2(d, 15, dtype)
-    start, stop = claim(d)
-    while start < stop:
-        _walk(occupied, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths, first_col,
-              first_row, reach_distance, per_world, out, start, stop)
-        start, stop = claim(d)
+    in_chunks(d, _walk, (occupied, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths,
+                         first_col, first_row, reach_distance, per_world, out))
 
 
 @numba.cfunc(ENTRY, nogil=True, cache=True)
-def _walk_f32(data):  # pragma: no cover - compiled
-    _walk_share(data, np.float32)
-
-
-@numba.cfunc(ENTRY, nogil=True, cache=True)
-def _walk_f64(data):  # pragma: no cover - compiled
-    _walk_share(data, np.float64)
+def _walk_entry(data):  # pragma: no cover - compiled
+    """:func:`_walk_share` in the dtype whose size in bytes is argument 16."""
+    in_float_dtype(data, 16, _walk_share)
 
 
 @numba.cfunc(ENTRY, nogil=True, cache=True)
@@ -426,11 +431,8 @@ def _near_occupied_entry(data):  # pragma: no cover - compiled
     d = descriptor(data)
     occupied, block_distance = array3(d, 0, np.bool_), array3(d, 1, np.uint8)
     fine_row, fine_col, out = array1(d, 2, np.int64), array1(d, 3, np.int64), array1(d, 7, np.bool_)
-    start, stop = claim(d)
-    while start < stop:
-        _near_occupied(occupied, block_distance, fine_row, fine_col, real(d, 4), real(d, 5), integer(d, 6), out,
-                       start, stop)
-        start, stop = claim(d)
+    in_chunks(d, _near_occupied, (occupied, block_distance, fine_row, fine_col, real(d, 4), real(d, 5), integer(d, 6),
+                                  out))
 
 
 @numba.njit(inline="always", nogil=True)
@@ -441,17 +443,10 @@ def _sight_share(data, dtype):  # pragma: no cover - compiled
     occupied, block_cells = array3(d, 0, np.bool_), array3(d, 1, np.int16)
     origin, target, wanted = array2(d, 2, dtype), array2(d, 3, dtype), array1(d, 4, np.bool_)
     fraction, cell, out = array1(d, 5, dtype), array1(d, 6, dtype), array1(d, 7, np.bool_)
-    start, stop = claim(d)
-    while start < stop:
-        _sight(occupied, block_cells, origin, target, wanted, fraction, cell, out, start, stop)
-        start, stop = claim(d)
+    in_chunks(d, _sight, (occupied, block_cells, origin, target, wanted, fraction, cell, out))
 
 
 @numba.cfunc(ENTRY, nogil=True, cache=True)
-def _sight_f32(data):  # pragma: no cover - compiled
-    _sight_share(data, np.float32)
-
-
-@numba.cfunc(ENTRY, nogil=True, cache=True)
-def _sight_f64(data):  # pragma: no cover - compiled
-    _sight_share(data, np.float64)
+def _sight_entry(data):  # pragma: no cover - compiled
+    """:func:`_sight_share` in the dtype whose size in bytes is argument 8."""
+    in_float_dtype(data, 8, _sight_share)

@@ -38,7 +38,7 @@ from torch import Tensor
 from aia import rng
 from aia.config.errors import ConfigError
 from aia.envs.maps import RANDOM_SHAPES
-from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, claim, descriptor, integer, real, run_kernel
+from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, descriptor, in_chunks, integer, real, run_kernel
 
 # The uniforms one obstacle takes: shape, centre x and y, angle, length, second length, width.
 _OBSTACLE_DRAWS = 7
@@ -270,9 +270,6 @@ def _layouts_entry(data):  # pragma: no cover - compiled
     u, worlds, shapes = array2(d, 0, np.float64), array1(d, 1, np.int64), array1(d, 2, np.int64)
     occupancy, starts = array3(d, 13, np.bool_), array3(d, 14, np.bool_)
     row_starts, counts = array2(d, 15, np.int64), array1(d, 16, np.int64)
-    start, stop = claim(d)
-    while start < stop:
-        _layouts(u, worlds, shapes, integer(d, 3), integer(d, 4), real(d, 5), real(d, 6), real(d, 7), real(d, 8),
-                 real(d, 9), real(d, 10), array1(d, 11, np.int64), integer(d, 12), occupancy, starts, row_starts,
-                 counts, start, stop)
-        start, stop = claim(d)
+    in_chunks(d, _layouts, (u, worlds, shapes, integer(d, 3), integer(d, 4), real(d, 5), real(d, 6), real(d, 7),
+                            real(d, 8), real(d, 9), real(d, 10), array1(d, 11, np.int64), integer(d, 12), occupancy,
+                            starts, row_starts, counts))

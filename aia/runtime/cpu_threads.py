@@ -151,6 +151,25 @@ def claim(d):  # pragma: no cover - compiled
 
 
 @numba.njit(inline="always", nogil=True)
+def in_chunks(d, kernel, args):  # pragma: no cover - compiled
+    """``kernel(*args, start, stop)`` for each chunk this thread claims, until none is left (an entry's loop)."""
+    start, stop = claim(d)
+    while start < stop:
+        kernel(*args, start, stop)
+        start, stop = claim(d)
+
+
+@numba.njit(inline="always", nogil=True)
+def in_float_dtype(data, k, share):  # pragma: no cover - compiled
+    """``share(data, dtype)`` with ``dtype`` the float whose size in bytes is argument ``k`` (4 or 8): one entry for a
+    kernel's float32 and float64 arguments."""
+    if integer(descriptor(data), k) == 8:
+        share(data, np.float64)
+    else:
+        share(data, np.float32)
+
+
+@numba.njit(inline="always", nogil=True)
 def array1(d, k, dtype):  # pragma: no cover - compiled
     """Argument ``k``, a 1-dimensional array of ``dtype``."""
     s = _HEADER + _SLOTS * k

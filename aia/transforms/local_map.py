@@ -39,7 +39,7 @@ from torchrl.envs.transforms import Transform
 
 from aia.envs.config import LOCAL_MAP_CHANNELS
 from aia.runtime.compiling import compiled
-from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, claim, descriptor, integer, run_kernel
+from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, descriptor, in_chunks, integer, run_kernel
 
 if TYPE_CHECKING:
     from aia.envs.sensing import Geometry
@@ -287,7 +287,4 @@ def _mark_entry(data):  # pragma: no cover - compiled
     d = descriptor(data)
     occupancy, start, end = array3(d, 0, np.bool_), array2(d, 1, np.int64), array3(d, 2, np.int64)
     worlds, stamps, clock = array1(d, 3, np.bool_), array2(d, 5, np.float64), array1(d, 6, np.float64)
-    first, last = claim(d)
-    while first < last:
-        _mark_rays(occupancy, start, end, worlds, integer(d, 4), stamps, clock, first, last)
-        first, last = claim(d)
+    in_chunks(d, _mark_rays, (occupancy, start, end, worlds, integer(d, 4), stamps, clock))

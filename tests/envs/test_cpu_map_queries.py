@@ -18,7 +18,7 @@ from aia.envs.sensing import MapGeometry, WorldMapGeometry
 MARGIN, RANGE, FOV, SPACING = 0.5, 10.0, math.radians(120), 0.05
 
 
-def _maps() -> tuple[WorldMapGeometry, torch.Tensor]:
+def _maps(dtype: torch.dtype = torch.float32) -> tuple[WorldMapGeometry, torch.Tensor]:
     """Six 20 m x 20 m maps at 0.2 m (101 x 101 cells: the last block is cut by the border): empty, one cell, a
     wall across, a dense random scatter and two generated layouts; and 400 poses in each, some inside obstacles
     and some at the border."""
@@ -28,13 +28,13 @@ def _maps() -> tuple[WorldMapGeometry, torch.Tensor]:
     occ[3] = torch.rand(101, 101, generator=torch.Generator().manual_seed(3)) < 0.02
     layouts = RandomObstacles(RandomMapConfig(size=[20.2, 20.2], resolution=0.2, min_start_area=0.05), MARGIN)
     occ[4:] = layouts.generate(torch.tensor([11, 12]))[0]
-    geometry = WorldMapGeometry(6, (20.2, 20.2), 0.2, MARGIN, RANGE, FOV, SPACING, 4, "cpu", torch.float32)
+    geometry = WorldMapGeometry(6, (20.2, 20.2), 0.2, MARGIN, RANGE, FOV, SPACING, 4, "cpu", dtype)
     geometry.set_maps(torch.arange(6), occ, torch.ones_like(occ))
     gen = torch.Generator().manual_seed(0)
     xy = torch.rand(6, 400, 2, generator=gen) * 20.2
     xy[:, :20] = xy[:, :20] * 0.02  # next to the lower-left corner
     heading = (torch.rand(6, 400, 1, generator=gen) * 2 - 1) * math.pi
-    return geometry, torch.cat((xy, heading), -1)
+    return geometry, torch.cat((xy, heading), -1).to(dtype)
 
 
 def _bins(geometry: WorldMapGeometry, pose: torch.Tensor) -> torch.Tensor:
@@ -69,14 +69,19 @@ def test_closest_obstacle_walked_equals_gathered_eager_and_compiled():
     assert (walked[..., 0] < RANGE).float().mean() > 0.5
 
 
-def test_block_distances_are_chessboard_distances_between_blocks():
-    geometry, _ = _maps()
-    occ = geometry.occupancy
-    B, ny, nx = occ.shape
+def _blocks(occupancy: torch.Tensor) -> torch.Tensor:
+    """``[B, nby, nbx, BLOCK * BLOCK]`` each block's cells, row by row (the grid padded with free cells)."""
+    B, ny, nx = occupancy.shape
     nby, nbx = math.ceil(ny / BLOCK), math.ceil(nx / BLOCK)
     padded = torch.zeros(B, nby * BLOCK, nbx * BLOCK, dtype=torch.bool)
-    padded[:, :ny, :nx] = occ
-    occupied_blocks = padded.view(B, nby, BLOCK, nbx, BLOCK).any(-1).any(-2)
+    padded[:, :ny, :nx] = occupancy
+    return padded.view(B, nby, BLOCK, nbx, BLOCK).permute(0, 1, 3, 2, 4).reshape(B, nby, nbx, BLOCK * BLOCK)
+
+
+def test_block_distances_are_chessboard_distances_between_blocks():
+    geometry, _ = _maps()
+    occupied_blocks = _blocks(geometry.occupancy).any(-1)
+    B, nby, nbx = occupied_blocks.shape
     i, j = torch.meshgrid(torch.arange(nby), torch.arange(nbx), indexing="ij")
     chessboard = torch.maximum((i.reshape(-1, 1) - i.reshape(1, -1)).abs(), (j.reshape(-1, 1) - j.reshape(1, -1)).abs())
     for b in range(B):
@@ -117,12 +122,17 @@ def test_line_of_sight_equals_the_gathered_samples():
 
 def test_block_cells_are_the_occupied_cells_bits():
     geometry, _ = _maps()
-    occ = geometry.occupancy
-    B, ny, nx = occ.shape
-    nby, nbx = math.ceil(ny / BLOCK), math.ceil(nx / BLOCK)
-    padded = torch.zeros(B, nby * BLOCK, nbx * BLOCK, dtype=torch.bool)
-    padded[:, :ny, :nx] = occ
-    bits = padded.view(B, nby, BLOCK, nbx, BLOCK).permute(0, 1, 3, 2, 4).reshape(B, nby, nbx, BLOCK * BLOCK)
-    expected = (bits.long() << torch.arange(BLOCK * BLOCK)).sum(-1)
+    expected = (_blocks(geometry.occupancy).long() << torch.arange(BLOCK * BLOCK)).sum(-1)
     assert torch.equal(geometry._cpu.block_cells.long() & 0xFFFF, expected)
     assert (expected >= 1 << 15).any()  # the sign bit in use
+
+
+def test_float64_worlds_walk_and_sight_as_gathered():
+    """The kernels' float64 entries: the closest obstacle and the lines of sight of a float64 env."""
+    geometry, pose = _maps(torch.float64)
+    target = pose[..., :2].flip(1)
+    walked, sight = geometry.closest_obstacle(pose), geometry.line_of_sight(pose[..., :2], target)
+    geometry._cpu = None
+    assert torch.equal(walked, geometry.closest_obstacle(pose))
+    assert torch.equal(sight, geometry.line_of_sight(pose[..., :2], target))
+    assert walked.dtype == torch.float64 and 0.1 < sight.float().mean() < 0.9
