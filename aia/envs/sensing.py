@@ -316,7 +316,6 @@ class WorldMapGeometry(Geometry):
         # are gathered whole.
         self._cpu = (CpuMapQueries(num_worlds, self.shape, resolution, cols, rows, self._ray_distances)
                      if self.device.type == "cpu" else None)
-        self._fraction = self._sight_fractions()
 
     def set_maps(self, worlds: Tensor, occupancy: Tensor, start_cells: Tensor, row_starts: Tensor | None = None
                  ) -> None:
@@ -393,7 +392,7 @@ class WorldMapGeometry(Geometry):
         origin, target = torch.broadcast_tensors(origin, target)
         wanted = torch.ones(origin.shape[:-1], dtype=torch.bool) if wanted is None else wanted
         return self._cpu.line_of_sight(self.occupancy, origin, target, wanted.expand(origin.shape[:-1]),
-                                       self._fraction)
+                                       self._sight_fractions())
 
     def free_start(self, xy: Tensor) -> Tensor:
         """Whether an episode may place a robot, target or belief at each position ``[B, ..., 2]``: in one of its

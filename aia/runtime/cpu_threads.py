@@ -77,10 +77,10 @@ os.register_at_fork(after_in_child=_after_fork)
 def run_kernel(entry, count: int, args: Sequence[torch.Tensor | _Scalar], chunk: int | None = None,
                team: bool | None = None) -> None:
     """Run the cfunc ``entry`` over ``range(count)`` with the arguments ``args`` (contiguous CPU tensors of up to 3
-    dimensions, ints and floats, read by the entry through :func:`array1`, :func:`array2`, :func:`array3`,
-    :func:`integer` and :func:`real` by position) in ``torch.get_num_threads()`` threads, in chunks of ``chunk``
-    (default: an eighth of a thread's share). ``team``: run on torch's OpenMP team (default: where it can), or on
-    threads of our own (False)."""
+    dimensions, each in the dtype its entry reads it as, ints and floats; read by the entry through :func:`array1`,
+    :func:`array2`, :func:`array3`, :func:`integer` and :func:`real` by position) in ``torch.get_num_threads()``
+    threads, in chunks of ``chunk`` (default: an eighth of a thread's share). ``team``: run on torch's OpenMP team
+    where it can (default: unless in a forked child), or on threads of our own (False)."""
     if count <= 0:
         return
     threads = max(1, min(torch.get_num_threads(), count))
@@ -89,7 +89,7 @@ def run_kernel(entry, count: int, args: Sequence[torch.Tensor | _Scalar], chunk:
     address = descriptor.ctypes.data
     if threads == 1:
         entry.ctypes(address)
-    elif (_TEAM is not None and not _FORKED) if team is None else team:
+    elif _TEAM is not None and (not _FORKED if team is None else team):
         _TEAM(entry.address, address, threads, 0)
     else:
         others = [_pool(threads - 1).submit(entry.ctypes, address) for _ in range(threads - 1)]
