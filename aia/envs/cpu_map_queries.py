@@ -34,7 +34,6 @@ import torch
 from torch import Tensor
 
 from aia.runtime.cpu_threads import (
-    ENTRY,
     array1,
     array2,
     array3,
@@ -42,6 +41,7 @@ from aia.runtime.cpu_threads import (
     in_chunks,
     in_float_dtype,
     integer,
+    kernel_entry,
     real,
     run_kernel,
 )
@@ -396,8 +396,8 @@ def _sight(occupied, block_cells, origin, target, wanted, fraction, cell, out, s
         out[q] = clear
 
 
-# The kernels' entries (compiled when this module loads, after the kernels they call).
-@numba.cfunc(ENTRY, nogil=True, cache=True)
+# The kernels' entries (compiled on their first run).
+@kernel_entry
 def _block_distances_entry(data):  # pragma: no cover - compiled
     """:func:`_block_distances` of the arguments ``(occupied, worlds, out)``, chunk by chunk of ``worlds``."""
     d = descriptor(data)
@@ -419,13 +419,13 @@ def _walk_share(data, dtype):  # pragma: no cover - compiled
                          first_col, first_row, reach_distance, per_world, out))
 
 
-@numba.cfunc(ENTRY, nogil=True, cache=True)
+@kernel_entry
 def _walk_entry(data):  # pragma: no cover - compiled
     """:func:`_walk_share` in the dtype whose size in bytes is argument 16."""
     in_float_dtype(data, 16, _walk_share)
 
 
-@numba.cfunc(ENTRY, nogil=True, cache=True)
+@kernel_entry
 def _near_occupied_entry(data):  # pragma: no cover - compiled
     """:func:`_near_occupied` of the arguments of :func:`near_occupied` and ``out``, chunk by chunk of the points."""
     d = descriptor(data)
@@ -446,7 +446,7 @@ def _sight_share(data, dtype):  # pragma: no cover - compiled
     in_chunks(d, _sight, (occupied, block_cells, origin, target, wanted, fraction, cell, out))
 
 
-@numba.cfunc(ENTRY, nogil=True, cache=True)
+@kernel_entry
 def _sight_entry(data):  # pragma: no cover - compiled
     """:func:`_sight_share` in the dtype whose size in bytes is argument 8."""
     in_float_dtype(data, 8, _sight_share)

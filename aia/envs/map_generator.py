@@ -38,7 +38,17 @@ from torch import Tensor
 from aia import rng
 from aia.config.errors import ConfigError
 from aia.envs.maps import RANDOM_SHAPES
-from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, descriptor, in_chunks, integer, real, run_kernel
+from aia.runtime.cpu_threads import (
+    array1,
+    array2,
+    array3,
+    descriptor,
+    in_chunks,
+    integer,
+    kernel_entry,
+    real,
+    run_kernel,
+)
 
 # The uniforms one obstacle takes: shape, centre x and y, angle, length, second length, width.
 _OBSTACLE_DRAWS = 7
@@ -261,8 +271,8 @@ def _root(parent, k):  # pragma: no cover - compiled
     return k
 
 
-# The kernel's entry (compiled when this module loads, after the kernels it calls).
-@numba.cfunc(ENTRY, nogil=True, cache=True)
+# The kernel's entry (compiled on its first run).
+@kernel_entry
 def _layouts_entry(data):  # pragma: no cover - compiled
     """:func:`_layouts` of the arguments ``(u, worlds, *shape arguments, occupancy, starts, row_starts, counts)``,
     chunk by chunk of the layouts."""

@@ -1,6 +1,7 @@
 """Run a numba kernel over a batch on torch's own CPU threads (its OpenMP team).
 
-A kernel here is a numba ``cfunc`` *entry* of signature :data:`ENTRY` that reads its arguments from a
+A kernel here is a numba ``cfunc`` *entry* of signature :data:`ENTRY` (declared with :func:`kernel_entry`, which
+compiles it on its first run, so that importing a module of kernels costs nothing) that reads its arguments from a
 *descriptor* (:func:`run_kernel` packs it: the batch's size, a chunk size, a shared counter and up to
 :data:`MAX_ARGS` arguments, each a contiguous tensor's address and shape or a scalar) and works through the batch
 in chunks it claims from the counter (:func:`claim`), until none are left. Any number of threads may run the entry
@@ -74,15 +75,38 @@ def _after_fork() -> None:
 os.register_at_fork(after_in_child=_after_fork)
 
 
+class KernelEntry:
+    """A kernel's entry, compiled as a ``cfunc`` (or loaded from numba's cache) on its first run: loading the
+    env's seven entries at import took about a second in every process, the CLI's and each test's included."""
+
+    def __init__(self, function) -> None:
+        self.function = function
+        self._cfunc = None
+
+    @property
+    def cfunc(self):
+        """The compiled entry."""
+        if self._cfunc is None:
+            self._cfunc = numba.cfunc(ENTRY, nogil=True, cache=True)(self.function)
+        return self._cfunc
+
+
+def kernel_entry(function) -> KernelEntry:
+    """Declare ``function(data)`` a kernel's entry (a decorator)."""
+    return KernelEntry(function)
+
+
 def run_kernel(entry, count: int, args: Sequence[torch.Tensor | _Scalar], chunk: int | None = None,
                team: bool | None = None) -> None:
-    """Run the cfunc ``entry`` over ``range(count)`` with the arguments ``args`` (contiguous CPU tensors of up to 3
-    dimensions, each in the dtype its entry reads it as, ints and floats; read by the entry through :func:`array1`,
-    :func:`array2`, :func:`array3`, :func:`integer` and :func:`real` by position) in ``torch.get_num_threads()``
-    threads, in chunks of ``chunk`` (default: an eighth of a thread's share). ``team``: run on torch's OpenMP team
-    where it can (default: unless in a forked child), or on threads of our own (False)."""
+    """Run the entry ``entry`` (a :class:`KernelEntry` or a cfunc) over ``range(count)`` with the arguments
+    ``args`` (contiguous CPU tensors of up to 3 dimensions, each in the dtype its entry reads it as, ints and
+    floats; read by the entry through :func:`array1`, :func:`array2`, :func:`array3`, :func:`integer` and
+    :func:`real` by position) in ``torch.get_num_threads()`` threads, in chunks of ``chunk`` (default: an eighth of
+    a thread's share). ``team``: run on torch's OpenMP team where it can (default: unless in a forked child), or on
+    threads of our own (False)."""
     if count <= 0:
         return
+    entry = entry.cfunc if isinstance(entry, KernelEntry) else entry
     threads = max(1, min(torch.get_num_threads(), count))
     chunk = chunk or max(1, math.ceil(count / (8 * threads)))
     descriptor = _descriptor(count, chunk, args)

@@ -39,7 +39,7 @@ from torchrl.envs.transforms import Transform
 
 from aia.envs.config import LOCAL_MAP_CHANNELS
 from aia.runtime.compiling import compiled
-from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, descriptor, in_chunks, integer, run_kernel
+from aia.runtime.cpu_threads import array1, array2, array3, descriptor, in_chunks, integer, kernel_entry, run_kernel
 
 if TYPE_CHECKING:
     from aia.envs.sensing import Geometry
@@ -280,7 +280,7 @@ def _mark_rays(occupancy, start, end, worlds, ray_cells, stamps, clock, first, l
                 stamps[b, y * nx + x] = clock[b]
 
 
-@numba.cfunc(ENTRY, nogil=True, cache=True)
+@kernel_entry
 def _mark_entry(data):  # pragma: no cover - compiled
     """:func:`_mark_rays` of ``(occupancy, start, end, worlds, ray_cells, stamps, clock)``, chunk by chunk of the
     worlds."""

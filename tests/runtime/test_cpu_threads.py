@@ -6,16 +6,15 @@ from __future__ import annotations
 
 import multiprocessing
 
-import numba
 import numpy as np
 import pytest
 import torch
 
 from aia.runtime import cpu_threads
-from aia.runtime.cpu_threads import ENTRY, array1, array2, array3, claim, descriptor, integer, real, run_kernel
+from aia.runtime.cpu_threads import array1, array2, array3, claim, descriptor, integer, kernel_entry, real, run_kernel
 
 
-@numba.cfunc(ENTRY, nogil=True)
+@kernel_entry
 def _visit(data):  # pragma: no cover - compiled
     """visits[i] += 1 and values[i] = i * scale + offset + grid[i % 2, i % 3] + cube[0, 1, i % 2] for each claimed i."""
     d = descriptor(data)
