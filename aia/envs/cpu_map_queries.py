@@ -5,7 +5,8 @@ a compiled step as operators of their own (``aia::ray_walk``, ``aia::near_occupi
 What makes them cheap is one distance field per map, over squares of ``BLOCK x BLOCK`` cells: each square's
 chessboard distance in squares to the nearest square holding an occupied cell (recomputed for the worlds whose maps
 change, at their reset; :func:`free_radius` turns it into a radius of cells around any cell that holds no
-obstacle). The grids of 4,096 maps (134 MB) do not fit in the caches; their distance fields (8.7 MB) do.
+obstacle), and each square's occupied cells as the bits of an int16. The grids of 4,096 maps (134 MB) do not fit
+in the caches; their distance fields and bits (8.7 and 17 MB) do.
 
 * **The closest obstacle in view** (:func:`ray_walk`): the first occupied cell along each ray in the field of
   view. Gathered whole (42 rays of up to about 70 cells at the paper's 0.05 rad spacing, 10 m range and 0.2 m
@@ -15,8 +16,8 @@ obstacle). The grids of 4,096 maps (134 MB) do not fit in the caches; their dist
   its first index as they were; from a free cell it jumps over every cell within its free radius. The cells a ray
   crosses are the same offsets from any start, and their ``|dcol|`` and ``|drow|`` never decrease, so the first
   cell beyond a radius is a lookup in two tables per ray.
-* **Collision** (:func:`near_occupied`): the map cells within ``margin`` of a point are read only when its cell's
-  free radius does not already clear them.
+* **Collision** (:func:`near_occupied`): the map cells within ``margin`` of a point are read only when neither its
+  cell's free radius nor the squares around it clear them.
 * **Line of sight** (:func:`line_of_sight`): the samples of a segment are read in order to the first occupied
   one, only for the segments asked about (those in range and field of view), skipping the cells of free squares.
 
@@ -78,7 +79,8 @@ class CpuMapQueries:
         self.block_cells = torch.zeros(num_worlds, *blocks, dtype=torch.int16)
 
     def update(self, occupancy: Tensor, worlds: Tensor) -> None:
-        """Recompute the block distances of the worlds ``worlds [K]`` from their maps in ``occupancy [B, ny, nx]``."""
+        """Recompute the block distances and cells of the worlds ``worlds [K]`` from their maps in ``occupancy [B, ny,
+        nx]``."""
         worlds = worlds.cpu().to(torch.int64).contiguous()
         run_kernel(_block_distances_entry, worlds.shape[0],
                    (occupancy.contiguous(), worlds, self.block_distance, self.block_cells))
@@ -188,16 +190,16 @@ def _(occupancy, block_cells, origin, target, wanted, fraction, cell):
 
 
 @numba.njit(cache=True, nogil=True)
-def _block_distances(occupied, worlds, out, cells):  # pragma: no cover - compiled
-    """For each world in ``worlds``: ``cells[w]``, each block's occupied cells (:func:`occupied_cell`'s bits), and
-    ``out[w]``, each block's chessboard distance in blocks to the nearest block with an occupied cell (0: its
-    own; 255 at most), by the two passes of a 3 x 3 chamfer with unit weights over the blocks, bordered by a ring
-    that is never nearer."""
+def _block_distances(occupied, worlds, out, cells, start, stop):  # pragma: no cover - compiled
+    """For each world ``w`` in ``worlds[start:stop]``: ``cells[w]``, each block's occupied cells
+    (:func:`occupied_cell`'s bits), and ``out[w]``, each block's chessboard distance in blocks to the nearest block
+    with an occupied cell (0: its own; 255 at most), by the two passes of a 3 x 3 chamfer with unit weights over
+    the blocks, bordered by a ring that is never nearer."""
     ny, nx = occupied.shape[1], occupied.shape[2]
     nby, nbx = out.shape[1], out.shape[2]
     far = np.empty((nby + 2, nbx + 2), dtype=np.int32)
     row_bits = np.empty((nby, nbx), dtype=np.int32)
-    for w in worlds:
+    for w in worlds[start:stop]:
         far[:] = 255
         row_bits[:] = 0
         for r in range(ny):
@@ -228,12 +230,6 @@ def _block_distances(occupied, worlds, out, cells):  # pragma: no cover - compil
         for i in range(nby):
             for j in range(nbx):
                 out[w, i, j] = min(far[i + 1, j + 1], 255)
-
-
-@numba.njit(cache=True, nogil=True)
-def _block_distances_of(occupied, worlds, out, cells, start, stop):  # pragma: no cover - compiled
-    """:func:`_block_distances` of the worlds ``worlds[start:stop]``."""
-    _block_distances(occupied, worlds[start:stop], out, cells)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -399,10 +395,10 @@ def _sight(occupied, block_cells, origin, target, wanted, fraction, cell, out, s
 # The kernels' entries (compiled on their first run).
 @kernel_entry
 def _block_distances_entry(data):  # pragma: no cover - compiled
-    """:func:`_block_distances` of the arguments ``(occupied, worlds, out)``, chunk by chunk of ``worlds``."""
+    """:func:`_block_distances` of the arguments ``(occupied, worlds, out, cells)``, chunk by chunk of ``worlds``."""
     d = descriptor(data)
     occupied, worlds, out = array3(d, 0, np.bool_), array1(d, 1, np.int64), array3(d, 2, np.uint8)
-    in_chunks(d, _block_distances_of, (occupied, worlds, out, array3(d, 3, np.int16)))
+    in_chunks(d, _block_distances, (occupied, worlds, out, array3(d, 3, np.int16)))
 
 
 @numba.njit(inline="always", nogil=True)
