@@ -29,6 +29,7 @@ from omegaconf.errors import OmegaConfBaseException, ValidationError
 
 from aia.config.errors import ConfigError, RunFailed, one_line
 from aia.config.schemas import SCHEMAS, declared_check
+from aia.runtime.process_exit import freeze_at_exit
 
 COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
 DEBUG_FLAG = "--debug"
@@ -97,6 +98,7 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
         @functools.wraps(task)
         def run(*args: Any, **kwargs: Any) -> Any:
             nonlocal debug
+            freeze_at_exit()
             debug = DEBUG_FLAG in sys.argv[1:] or os.environ.get("HYDRA_FULL_ERROR") == "1"
             sys.argv = [sys.argv[0], *(a for a in sys.argv[1:] if a != DEBUG_FLAG)]
             previous = os.environ.get("HYDRA_FULL_ERROR")

@@ -52,6 +52,7 @@ from aia.logging.stats import (
     stats_json,
     stats_table,
 )
+from aia.runtime.process_exit import freeze_at_exit
 
 RENDER_FORMATS = (".gif", ".png")
 SUMMARY_KEYS = ("algo", "exploration", "env.map", "env.num_targets", "seed", "frames")
@@ -499,6 +500,7 @@ def run_command(args: argparse.Namespace) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``aia-log``; returns the exit status (2 with a one-line message on bad input)."""
+    freeze_at_exit()
     parser = make_parser()
     try:
         args = parser.parse_args(argv)

@@ -82,4 +82,7 @@ def synchronize(device: str) -> None:
 
 
 if __name__ == "__main__":
+    from aia.runtime.process_exit import freeze_at_exit
+
+    freeze_at_exit()
     print(f"{sgemm_gflops():.0f}")

@@ -58,6 +58,9 @@ class PopulationJob:
         self.max_requeues = max_requeues
 
     def __call__(self, call: Call) -> tuple[str, object]:
+        from aia.runtime.process_exit import freeze_at_exit  # imported here, as training()
+
+        freeze_at_exit()
         restarts = int(os.environ.get("SLURM_RESTART_COUNT", "0") or 0)
         start_resource_tracker_blocking(REQUEUE_SIGNAL)
         if restarts:

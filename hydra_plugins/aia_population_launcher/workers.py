@@ -203,7 +203,10 @@ def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:
 def _serve(conn: Connection) -> None:
     """A worker's loop: run each call received and send back ``("done", outcome)``; a task stopped by a
     signal sends ``("stopped", exit status)`` and ends the worker; ``None`` ends it."""
+    from aia.runtime.process_exit import freeze_at_exit  # imported here, as training()
+
     forwarding = training().forwarding  # the worker's own import of aia (see run_in_workers)
+    freeze_at_exit()
 
     sys.stdout.reconfigure(line_buffering=True)  # what is printed between populations, as it comes
     launcher = _LauncherPipe(conn)
