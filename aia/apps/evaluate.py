@@ -52,8 +52,19 @@ POLICIES = ("checkpoint", "arvi")
 
 def load_checkpoint(path: str | Path) -> dict:
     """A checkpoint written by ``aia-train``, or a :class:`ConfigError` (a ValueError) naming the path and what is
-    wrong: missing, damaged (:func:`~aia.training.checkpoint_files.checkpoint_damage`), unreadable or foreign."""
+    wrong: missing, damaged (:func:`~aia.training.checkpoint_files.checkpoint_damage`), unreadable or foreign.
+    Checked and read once per state of the file (its size and modification time): the validation, the layout
+    guard and the evaluation each ask for it. Callers must not change what it returns."""
     path = Path(path)
+    if not path.is_file():
+        check_checkpoint_file("checkpoint", path)  # its one line
+    stat = path.stat()
+    return _read_checkpoint(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=1)
+def _read_checkpoint(path: Path, mtime_ns: int, size: int) -> dict:
+    """:func:`load_checkpoint` of the file at ``path`` in the state ``(mtime_ns, size)``."""
     check_checkpoint_file("checkpoint", path)
     try:
         checkpoint = torch.load(path, weights_only=False, map_location="cpu")

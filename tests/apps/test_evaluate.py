@@ -4,6 +4,7 @@ policy."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -47,6 +48,19 @@ def test_evaluation_is_seeded_and_batched(checkpoint):
     assert first["scores"] == again["scores"] and first["scores"] != other["scores"]
     assert len(first["scores"]) == 6 and first["frames_trained"] == 200 and first["algo"] == "dqn"
     assert first["score_mean"] == pytest.approx(sum(first["scores"]) / 6, rel=1e-5)
+
+
+def test_a_checkpoint_is_read_once_per_state_of_its_file(tmp_path, checkpoint):
+    copy = tmp_path / "copy.pt"
+    copy.write_bytes(checkpoint.read_bytes())
+    first = evaluate_app.load_checkpoint(copy)
+    assert evaluate_app.load_checkpoint(str(copy)) is first  # the validation, the guard and the evaluation
+    os.utime(copy, ns=(copy.stat().st_atime_ns, copy.stat().st_mtime_ns + 1))  # written again: read again
+    again = evaluate_app.load_checkpoint(copy)
+    assert again is not first and again["state"]["frames"] == first["state"]["frames"]
+    copy.write_bytes(copy.read_bytes()[:1000])  # damaged since: refused, not the copy read before
+    with pytest.raises(ValueError, match="copy.pt.*not a whole zip archive"):
+        evaluate_app.load_checkpoint(copy)
 
 
 def test_bad_checkpoints_are_named(tmp_path, checkpoint):
