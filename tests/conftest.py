@@ -2,7 +2,8 @@
 
 The suite runs in two pytest-xdist workers (``-n 2`` in pyproject's ``addopts``) on the 2-core machine: each
 worker, and every process a test starts, computes on one thread, so the two workers do not contend for the
-cores (two workers at two threads each were slower than one worker).
+cores (two workers at two threads each were slower than one worker). Before the workers start, the controller
+compiles aia's numba kernels once into numba's cache (:mod:`tests.kernel_cache`), so that they load them.
 """
 
 from __future__ import annotations
@@ -10,7 +11,10 @@ from __future__ import annotations
 import errno
 import io
 import os
+import subprocess
+import sys
 from collections.abc import Callable
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -19,6 +23,20 @@ import torch
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ["OMP_NUM_THREADS"] = "1"  # inherited by the apps' subprocesses
     torch.set_num_threads(1)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """In the controller of a run with workers: the kernels' cache (:mod:`tests.kernel_cache`), its two parts side
+    by side. A part that fails is left to the tests that use its kernels to report."""
+    if os.environ.get("PYTEST_XDIST_WORKER") or not getattr(config.option, "numprocesses", None):
+        return
+    from tests.kernel_cache import PARTS
+
+    root = Path(__file__).resolve().parents[1]
+    parts = [subprocess.Popen([sys.executable, "-m", "tests.kernel_cache", part], cwd=root,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for part in PARTS]
+    for part in parts:
+        part.wait()
 
 
 class FullDiskFile(io.FileIO):
