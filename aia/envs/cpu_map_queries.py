@@ -393,7 +393,7 @@ def _sight(occupied, block_cells, origin, target, wanted, fraction, cell, out, s
 
 
 # The kernels' entries (compiled on their first run).
-@kernel_entry
+@kernel_entry("bool[3]", "int64[1]", "uint8[3]", "int16[3]")
 def _block_distances_entry(data):  # pragma: no cover - compiled
     """:func:`_block_distances` of the arguments ``(occupied, worlds, out, cells)``, chunk by chunk of ``worlds``."""
     d = descriptor(data)
@@ -415,13 +415,14 @@ def _walk_share(data, dtype):  # pragma: no cover - compiled
                          first_col, first_row, reach_distance, per_world, out))
 
 
-@kernel_entry
+@kernel_entry("bool[3]", "uint8[3]", "int16[3]", "int64[1]", "int64[1]", "int64[2]", "real[2]", "int16[2]",
+              "int16[2]", "real[2]", "int64[1]", "int16[2]", "int16[2]", "real[1]", "int", "real[2]", "real_size")
 def _walk_entry(data):  # pragma: no cover - compiled
     """:func:`_walk_share` in the dtype whose size in bytes is argument 16."""
     in_float_dtype(data, 16, _walk_share)
 
 
-@kernel_entry
+@kernel_entry("bool[3]", "uint8[3]", "int64[1]", "int64[1]", "float", "float", "int", "bool[1]")
 def _near_occupied_entry(data):  # pragma: no cover - compiled
     """:func:`_near_occupied` of the arguments of :func:`near_occupied` and ``out``, chunk by chunk of the points."""
     d = descriptor(data)
@@ -442,7 +443,7 @@ def _sight_share(data, dtype):  # pragma: no cover - compiled
     in_chunks(d, _sight, (occupied, block_cells, origin, target, wanted, fraction, cell, out))
 
 
-@kernel_entry
+@kernel_entry("bool[3]", "int16[3]", "real[2]", "real[2]", "bool[1]", "real[1]", "real[1]", "bool[1]", "real_size")
 def _sight_entry(data):  # pragma: no cover - compiled
     """:func:`_sight_share` in the dtype whose size in bytes is argument 8."""
     in_float_dtype(data, 8, _sight_share)

@@ -272,7 +272,8 @@ def _root(parent, k):  # pragma: no cover - compiled
 
 
 # The kernel's entry (compiled on its first run).
-@kernel_entry
+@kernel_entry("float64[2]", "int64[1]", "int64[1]", "int", "int", "float", "float", "float", "float", "float",
+              "float", "int64[1]", "int", "bool[3]", "bool[3]", "int64[2]", "int64[1]")
 def _layouts_entry(data):  # pragma: no cover - compiled
     """:func:`_layouts` of the arguments ``(u, worlds, *shape arguments, occupancy, starts, row_starts, counts)``,
     chunk by chunk of the layouts."""

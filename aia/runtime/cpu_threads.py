@@ -1,11 +1,12 @@
 """Run a numba kernel over a batch on torch's own CPU threads (its OpenMP team).
 
-A kernel here is a numba ``cfunc`` *entry* of signature :data:`ENTRY` (declared with :func:`kernel_entry`, which
-compiles it on its first run, so that importing a module of kernels costs nothing) that reads its arguments from a
-*descriptor* (:func:`run_kernel` packs it: the batch's size, a chunk size, a shared counter and up to
-:data:`MAX_ARGS` arguments, each a contiguous tensor's address and shape or a scalar) and works through the batch
-in chunks it claims from the counter (:func:`claim`), until none are left. Any number of threads may run the entry
-at once; which thread takes which chunk never changes a result.
+A kernel here is a numba ``cfunc`` *entry* of signature :data:`ENTRY` (declared with :func:`kernel_entry` and its
+arguments' dtypes and dimensions, which :func:`run_kernel` checks; compiled on its first run, so that importing a
+module of kernels costs nothing) that reads its arguments from a *descriptor* (:func:`run_kernel` packs it: the
+batch's size, a chunk size, a shared counter and up to :data:`MAX_ARGS` arguments, each a contiguous tensor's
+address and shape or a scalar) and works through the batch in chunks it claims from the counter (:func:`claim`),
+until none are left. Any number of threads may run the entry at once; which thread takes which chunk never changes a
+result.
 
 :func:`run_kernel` hands the entry to torch's OpenMP team (``GOMP_parallel``, the call compiled OpenMP code makes)
 where torch's OpenMP runtime exports it, and to threads of its own otherwise. The team is the point: after each
@@ -75,12 +76,46 @@ def _after_fork() -> None:
 os.register_at_fork(after_in_child=_after_fork)
 
 
-class KernelEntry:
-    """A kernel's entry, compiled as a ``cfunc`` (or loaded from numba's cache) on its first run: loading the
-    env's seven entries at import took about a second in every process, the CLI's and each test's included."""
+# A kernel argument's declaration (:func:`kernel_entry`): a tensor ``"<dtype>[<ndim>]"`` (``"int64[1]"``, ``"bool[3]"``;
+# ``"real[2]"``: float32 or float64, the same for all of a call's ``real`` tensors), a scalar ``"int"`` or
+# ``"float"``, or ``"real_size"`` (an int: the element size of the call's ``real`` tensors, which
+# :func:`in_float_dtype` switches on).
+_TENSOR_DTYPES = {"bool": torch.bool, "uint8": torch.uint8, "int16": torch.int16, "int32": torch.int32,
+                  "int64": torch.int64, "float32": torch.float32, "float64": torch.float64, "real": None}
+_SCALARS = ("int", "float", "real_size")
+_REAL_DTYPES = (torch.float32, torch.float64)
 
-    def __init__(self, function) -> None:
+
+def _declared(spec: str) -> tuple[str, torch.dtype | None, int]:
+    """``(kind, dtype, ndim)`` of an argument's declaration; kind ``"tensor"``, ``"real"`` or a scalar's."""
+    if spec in _SCALARS:
+        return spec, None, 0
+    name, _, rest = spec.partition("[")
+    if name not in _TENSOR_DTYPES or rest not in ("1]", "2]", "3]"):
+        raise ValueError(f"kernel argument {spec!r}: expected <dtype>[1|2|3] with a dtype of "
+                         f"{', '.join(_TENSOR_DTYPES)}, or one of {', '.join(_SCALARS)}")
+    return ("real" if name == "real" else "tensor"), _TENSOR_DTYPES[name], int(rest[0])
+
+
+def _described(arg: object) -> str:
+    if isinstance(arg, torch.Tensor):
+        return f"{str(arg.dtype).removeprefix('torch.')} tensor {list(arg.shape)}"
+    return f"{type(arg).__name__} {arg!r}"
+
+
+class KernelEntry:
+    """A kernel's entry with its arguments' declarations, compiled as a ``cfunc`` (or loaded from numba's cache)
+    on its first run: loading the env's seven entries at import took about a second in every process, the CLI's
+    and each test's included. :func:`run_kernel` checks each call's arguments against the declarations before the
+    entry reads them as declared (the descriptor holds addresses and sizes, not dtypes)."""
+
+    def __init__(self, function, arguments: Sequence[str]) -> None:
+        if len(arguments) > MAX_ARGS:
+            raise ValueError(f"a kernel takes at most {MAX_ARGS} arguments, got {len(arguments)}")
         self.function = function
+        self.arguments = tuple(arguments)
+        self._declared = [_declared(spec) for spec in self.arguments]
+        self.floats = tuple(kind == "float" for kind, _, _ in self._declared)  # packed as floats (read by real())
         self._cfunc = None
 
     @property
@@ -90,26 +125,63 @@ class KernelEntry:
             self._cfunc = numba.cfunc(ENTRY, nogil=True, cache=True)(self.function)
         return self._cfunc
 
+    def check(self, args: Sequence[torch.Tensor | _Scalar]) -> None:
+        """Raise a ValueError naming the first argument that is not as declared."""
+        name = self.function.__name__
+        if len(args) != len(self.arguments):
+            raise ValueError(f"{name} takes {len(self.arguments)} arguments ({', '.join(self.arguments)}), "
+                             f"got {len(args)}")
+        real = None
+        for k, (arg, (kind, dtype, ndim)) in enumerate(zip(args, self._declared, strict=True)):
+            if kind == "tensor":
+                good = isinstance(arg, torch.Tensor) and arg.dtype == dtype and arg.ndim == ndim
+            elif kind == "real":
+                good = (isinstance(arg, torch.Tensor) and arg.dtype in _REAL_DTYPES and arg.ndim == ndim
+                        and arg.dtype == (real or arg.dtype))
+                real = arg.dtype if good else real
+            elif kind == "float":
+                good = isinstance(arg, (int, float)) and not isinstance(arg, bool)
+            else:
+                good = isinstance(arg, int) and not isinstance(arg, bool)
+            if not good:
+                raise ValueError(f"{name} argument {k}: expected {self.arguments[k]}"
+                                 f"{' (as the real tensors before it)' if kind == 'real' and real else ''}, "
+                                 f"got {_described(arg)}")
+        for k, (kind, _, _) in enumerate(self._declared):
+            if kind == "real_size" and (real is None or args[k] != real.itemsize):
+                raise ValueError(f"{name} argument {k}: expected real_size, the real tensors' element size "
+                                 f"({real.itemsize if real else 'no real tensor'}), got {args[k]!r}")
 
-def kernel_entry(function) -> KernelEntry:
-    """Declare ``function(data)`` a kernel's entry (a decorator)."""
-    return KernelEntry(function)
+
+def kernel_entry(*arguments: str):
+    """Declare ``function(data)`` a kernel's entry taking ``arguments`` (their declarations, in order; see
+    :data:`_TENSOR_DTYPES`), a decorator: ``@kernel_entry("bool[3]", "int64[1]", "float")``."""
+
+    def declare(function) -> KernelEntry:
+        return KernelEntry(function, arguments)
+
+    return declare
 
 
 def run_kernel(entry, count: int, args: Sequence[torch.Tensor | _Scalar], chunk: int | None = None,
                team: bool | None = None) -> None:
     """Run the entry ``entry`` (a :class:`KernelEntry` or a cfunc) over ``range(count)`` with the arguments
-    ``args`` (contiguous CPU tensors of up to 3 dimensions, each in the dtype its entry reads it as, ints and
-    floats; read by the entry through :func:`array1`, :func:`array2`, :func:`array3`, :func:`integer` and
-    :func:`real` by position) in ``torch.get_num_threads()`` threads, in chunks of ``chunk`` (default: an eighth of
-    a thread's share). ``team``: run on torch's OpenMP team where it can (default: unless in a forked child), or on
-    threads of our own (False)."""
+    ``args`` (contiguous CPU tensors of up to 3 dimensions, ints and floats, read by the entry through
+    :func:`array1`, :func:`array2`, :func:`array3`, :func:`integer` and :func:`real` by position) in
+    ``torch.get_num_threads()`` threads, in chunks of ``chunk`` (default: an eighth of a thread's share). A
+    :class:`KernelEntry`'s arguments must be as it declares them (a ValueError names the first that is not; a
+    declared float may be given as an int); a bare cfunc's are not checked. ``team``: run on torch's OpenMP team
+    where it can (default: unless in a forked child), or on threads of our own (False)."""
+    floats = None
+    if isinstance(entry, KernelEntry):
+        entry.check(args)
+        floats = entry.floats
     if count <= 0:
         return
     entry = entry.cfunc if isinstance(entry, KernelEntry) else entry
     threads = max(1, min(torch.get_num_threads(), count))
     chunk = chunk or max(1, math.ceil(count / (8 * threads)))
-    descriptor = _descriptor(count, chunk, args)
+    descriptor = _descriptor(count, chunk, args, floats)
     address = descriptor.ctypes.data
     if threads == 1:
         entry.ctypes(address)
@@ -122,7 +194,9 @@ def run_kernel(entry, count: int, args: Sequence[torch.Tensor | _Scalar], chunk:
             other.result()
 
 
-def _descriptor(count: int, chunk: int, args: Sequence[torch.Tensor | _Scalar]) -> np.ndarray:
+def _descriptor(count: int, chunk: int, args: Sequence[torch.Tensor | _Scalar],
+                floats: Sequence[bool] | None = None) -> np.ndarray:
+    """The descriptor of a call; ``floats``: per argument, whether to pack it as a float (default: the floats)."""
     if len(args) > MAX_ARGS:
         raise ValueError(f"a kernel takes at most {MAX_ARGS} arguments, got {len(args)}")
     descriptor = np.zeros(_HEADER + _SLOTS * MAX_ARGS, dtype=np.int64)
@@ -135,8 +209,8 @@ def _descriptor(count: int, chunk: int, args: Sequence[torch.Tensor | _Scalar]) 
                                  f"{arg.device} {tuple(arg.shape)} with strides {arg.stride()}")
             descriptor[slot] = arg.data_ptr()
             descriptor[slot + 1: slot + 1 + arg.ndim] = arg.shape
-        elif isinstance(arg, float):
-            descriptor[slot: slot + 1].view(np.float64)[0] = arg
+        elif floats[k] if floats is not None else isinstance(arg, float):
+            descriptor[slot: slot + 1].view(np.float64)[0] = float(arg)
         else:
             descriptor[slot] = int(arg)
     return descriptor

@@ -280,7 +280,7 @@ def _mark_rays(occupancy, start, end, worlds, ray_cells, stamps, clock, first, l
                 stamps[b, y * nx + x] = clock[b]
 
 
-@kernel_entry
+@kernel_entry("bool[3]", "int64[2]", "int64[3]", "bool[1]", "int", "float64[2]", "float64[1]")
 def _mark_entry(data):  # pragma: no cover - compiled
     """:func:`_mark_rays` of ``(occupancy, start, end, worlds, ray_cells, stamps, clock)``, chunk by chunk of the
     worlds."""

@@ -5,6 +5,7 @@ refused."""
 from __future__ import annotations
 
 import multiprocessing
+import re
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from aia.runtime import cpu_threads
 from aia.runtime.cpu_threads import array1, array2, array3, claim, descriptor, integer, kernel_entry, real, run_kernel
 
 
-@kernel_entry
+@kernel_entry("int64[1]", "float64[1]", "float32[2]", "int32[3]", "float", "int")
 def _visit(data):  # pragma: no cover - compiled
     """visits[i] += 1 and values[i] = i * scale + offset + grid[i % 2, i % 3] + cube[0, 1, i % 2] for each claimed i."""
     d = descriptor(data)
@@ -84,7 +85,40 @@ def test_a_forked_child_runs_in_threads_of_its_own():
 
 
 def test_bad_arguments_are_refused():
+    visits, values = torch.zeros(4, dtype=torch.int64), torch.zeros(4, dtype=torch.float64)
+    grid, cube = torch.zeros(2, 3), torch.zeros(2, 2, 2, dtype=torch.int32)
     with pytest.raises(ValueError, match="contiguous CPU tensors"):
-        run_kernel(_visit, 4, (torch.zeros(4, 2).t(),))
+        run_kernel(_visit, 4, (torch.zeros(8, dtype=torch.int64)[::2], values, grid, cube, 0.5, 1))
+    with pytest.raises(ValueError, match=r"_visit takes 6 arguments \(int64\[1\], float64\[1\], .*\), got 2"):
+        run_kernel(_visit, 4, (visits, values))
+    for k, bad, words in ((0, visits.int(), "int32 tensor [4]"), (2, grid.double(), "float64 tensor [2, 3]"),
+                          (3, cube[0], "int32 tensor [2, 2]"), (4, "0.5", "str '0.5'"), (5, 1.5, "float 1.5")):
+        args = [visits, values, grid, cube, 0.5, 1]
+        args[k] = bad
+        with pytest.raises(ValueError, match=f"_visit argument {k}: expected .*, got {re.escape(words)}$"):
+            run_kernel(_visit, 4, tuple(args))
     with pytest.raises(ValueError, match="at most 24 arguments"):
-        run_kernel(_visit, 4, tuple(range(25)))
+        kernel_entry(*["int"] * 25)(lambda data: None)
+    with pytest.raises(ValueError, match="kernel argument 'float16.1.'"):
+        kernel_entry("float16[1]")(lambda data: None)
+
+
+def test_a_declared_float_is_packed_as_one_when_given_an_int():
+    visits, values = torch.zeros(3, dtype=torch.int64), torch.zeros(3, dtype=torch.float64)
+    run_kernel(_visit, 3, (visits, values, torch.zeros(2, 3), torch.zeros(2, 2, 2, dtype=torch.int32), 2, 0))
+    assert values.tolist() == [0.0, 2.0, 4.0]  # i * 2.0: the int 2 read as the float 2.0, not as its bits
+
+
+def test_real_tensors_share_one_float_dtype_and_its_size():
+    entry = kernel_entry("real[1]", "real[2]", "real_size", "int64[1]")(lambda data: None)  # checked, not compiled
+    index = torch.zeros(2, dtype=torch.int64)
+    for dtype in (torch.float32, torch.float64):
+        entry.check((torch.zeros(2, dtype=dtype), torch.zeros(2, 2, dtype=dtype), dtype.itemsize, index))
+    with pytest.raises(ValueError, match=r"argument 1: expected real\[2\] \(as the real tensors before it\), got "
+                                         r"float64 tensor \[2, 2\]$"):
+        entry.check((torch.zeros(2), torch.zeros(2, 2, dtype=torch.float64), 4, index))
+    with pytest.raises(ValueError, match="argument 0: expected real.1., got int64 tensor"):
+        entry.check((index, torch.zeros(2, 2), 4, index))
+    with pytest.raises(ValueError, match=r"argument 2: expected real_size, the real tensors' element size \(4\), "
+                                         r"got 8"):
+        entry.check((torch.zeros(2), torch.zeros(2, 2), 8, index))
