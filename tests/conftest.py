@@ -2,8 +2,9 @@
 
 The suite runs in two pytest-xdist workers (``-n 2`` in pyproject's ``addopts``) on the 2-core machine: each
 worker, and every process a test starts, computes on one thread, so the two workers do not contend for the
-cores (two workers at two threads each were slower than one worker). Before the workers start, the controller
-compiles aia's numba kernels once into numba's cache (:mod:`tests.kernel_cache`), so that they load them.
+cores (two workers at two threads each were slower than one worker). While the workers start, the controller
+compiles aia's numba kernels once into numba's cache (:mod:`tests.kernel_cache`); their first tests wait for it,
+so that they load the kernels instead of each compiling its own.
 """
 
 from __future__ import annotations
@@ -11,8 +12,12 @@ from __future__ import annotations
 import errno
 import io
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -25,18 +30,49 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     torch.set_num_threads(1)
 
 
+# The file the controller makes once the kernels' cache is made (its path in the workers' environment), and how long
+# a worker waits for it.
+KERNEL_CACHE_READY = "AIA_TEST_KERNEL_CACHE_READY"
+KERNEL_CACHE_WAIT_S = 600
+
+
 def pytest_configure(config: pytest.Config) -> None:
-    """In the controller of a run with workers: the kernels' cache (:mod:`tests.kernel_cache`), its two parts side
-    by side. A part that fails is left to the tests that use its kernels to report."""
+    """In the controller of a run with workers: start making the kernels' cache (:mod:`tests.kernel_cache`, its two
+    parts side by side) while the workers start and collect; each worker's first test waits for it
+    (:func:`kernel_cache_made`). A part that fails is left to the tests that use its kernels to report."""
     if os.environ.get("PYTEST_XDIST_WORKER") or not getattr(config.option, "numprocesses", None):
         return
     from tests.kernel_cache import PARTS
 
     root = Path(__file__).resolve().parents[1]
+    ready = Path(tempfile.mkdtemp(prefix="aia-kernel-cache-")) / "ready"
+    os.environ[KERNEL_CACHE_READY] = str(ready)  # the workers, started after this hook, inherit it
     parts = [subprocess.Popen([sys.executable, "-m", "tests.kernel_cache", part], cwd=root,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for part in PARTS]
-    for part in parts:
-        part.wait()
+
+    def mark_ready() -> None:
+        for part in parts:
+            part.wait()
+        ready.touch()
+
+    threading.Thread(target=mark_ready, daemon=True).start()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    ready = os.environ.get(KERNEL_CACHE_READY)
+    if ready and not os.environ.get("PYTEST_XDIST_WORKER"):
+        shutil.rmtree(Path(ready).parent, ignore_errors=True)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def kernel_cache_made() -> None:
+    """In a worker, before its first test: wait until the controller has made the kernels' cache."""
+    ready = os.environ.get(KERNEL_CACHE_READY)
+    if not ready or not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    deadline = time.monotonic() + KERNEL_CACHE_WAIT_S
+    while not Path(ready).exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
 
 
 class FullDiskFile(io.FileIO):
