@@ -1,9 +1,10 @@
-"""Compile aia's numba kernels into numba's cache (files beside their modules), for the test session's start.
+"""Compile aia's numba kernels into numba's cache (files beside their modules), while the test session's workers start.
 
 numba compiles a kernel on its first use in a process and caches it; a process that needs it before one has
 written it compiles its own. In a fresh clone the two workers and the processes the tests start did so again and
 again: the suite took 376 s there against 267 s with the caches made (one run each, back to back). Compiling
-every kernel once takes 24 s on one core, in two parts run side by side:
+every kernel once takes 24 s on one core, in two parts run side by side (tests/conftest.py starts them, and each
+worker's first test waits for them):
 
     python -m tests.kernel_cache envs      # the map queries, the map generator, the visit maps (about 18 s)
     python -m tests.kernel_cache planner   # ARVI's expansion and pruning (about 11 s)
