@@ -9,6 +9,7 @@ so that they load the kernels instead of each compiling its own.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import io
 import os
@@ -53,7 +54,8 @@ def pytest_configure(config: pytest.Config) -> None:
     def mark_ready() -> None:
         for part in parts:
             part.wait()
-        ready.touch()
+        with contextlib.suppress(FileNotFoundError):  # the session ended first (pytest_unconfigure)
+            ready.touch()
 
     threading.Thread(target=mark_ready, daemon=True).start()
 
