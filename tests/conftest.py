@@ -37,11 +37,25 @@ KERNEL_CACHE_READY = "AIA_TEST_KERNEL_CACHE_READY"
 KERNEL_CACHE_WAIT_S = 600
 
 
+SLURM_SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "slurm_local.sh"
+_slurm_was_up: bool | None = None  # in the run's controller: whether the local SLURM cluster was up at its start
+
+
+def _slurm_up() -> bool:
+    return subprocess.run(["bash", str(SLURM_SCRIPT), "status"], capture_output=True, timeout=60).returncode == 0
+
+
 def pytest_configure(config: pytest.Config) -> None:
-    """In the controller of a run with workers: start making the kernels' cache (:mod:`tests.kernel_cache`, its two
-    parts side by side) while the workers start and collect; each worker's first test waits for it
-    (:func:`kernel_cache_made`). A part that fails is left to the tests that use its kernels to report."""
-    if os.environ.get("PYTEST_XDIST_WORKER") or not getattr(config.option, "numprocesses", None):
+    """In the run's controller (or its one process): note whether the local SLURM cluster is up (the SLURM tests
+    start it; :func:`pytest_unconfigure` stops it if this run did). With workers, also start making the kernels'
+    cache (:mod:`tests.kernel_cache`, its two parts side by side) while the workers start and collect; each
+    worker's first test waits for it (:func:`kernel_cache_made`). A part that fails is left to the tests that use
+    its kernels to report."""
+    global _slurm_was_up
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    _slurm_was_up = _slurm_up()
+    if not getattr(config.option, "numprocesses", None):
         return
     from tests.kernel_cache import PARTS
 
@@ -61,9 +75,14 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
+    """In the run's controller: remove the kernels' ready file, and stop the SLURM cluster if this run started it."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return
     ready = os.environ.get(KERNEL_CACHE_READY)
-    if ready and not os.environ.get("PYTEST_XDIST_WORKER"):
+    if ready:
         shutil.rmtree(Path(ready).parent, ignore_errors=True)
+    if _slurm_was_up is False and _slurm_up():
+        subprocess.run(["bash", str(SLURM_SCRIPT), "stop"], capture_output=True, timeout=120)
 
 
 @pytest.fixture(scope="session", autouse=True)

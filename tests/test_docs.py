@@ -64,8 +64,6 @@ PYTHON_IMPORTS_ONLY = {
                   "tests/planners/test_arvi.py plays ARVIPolicy episodes through run_episodes as the block does",
 }
 
-pytestmark = pytest.mark.xdist_group("docs")  # the bash lines read the log that a python block writes
-
 
 def blocks(page: Path, language: str) -> list[tuple[int, str]]:
     """(first line number, code) of each fenced block of ``language`` in ``page``."""

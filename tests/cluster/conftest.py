@@ -1,7 +1,7 @@
 """A real single-node SLURM cluster for the tests (scripts/slurm_local.sh), shared by the whole session.
 
-``slurm_cluster`` starts the cluster (installing its Debian packages on a fresh machine) and stops it at
-the end of the session if it was not already up. Its ``sweep`` runs ``aia-train -m hydra/launcher=slurm``
+``slurm_cluster`` starts the cluster (installing its Debian packages on a fresh machine); tests/conftest.py stops
+it at the end of the run if it was not up at its start. Its ``sweep`` runs ``aia-train -m hydra/launcher=slurm``
 with small per-job resources and a unique SLURM job name (``sweep_command`` gives the command line for a
 test that acts on the jobs while they run, e.g. ``scontrol requeue``), and ``jobs`` reads back what
 ``sacct`` recorded of that sweep's jobs, so a test can check the scheduler's view as well as the files.
@@ -14,7 +14,6 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,16 +100,14 @@ class SlurmCluster:
 
 
 @pytest.fixture(scope="session")
-def slurm_cluster() -> Iterator[SlurmCluster]:
-    """The local SLURM cluster, started (and its packages installed) if it is not up; stopped after the
-    session only if this session started it."""
-    was_up = script("status", timeout=60).returncode == 0
+def slurm_cluster() -> SlurmCluster:
+    """The local SLURM cluster, started (and its packages installed) if it is not up. Both workers may run SLURM
+    tests (pytest-xdist 3.8 cannot group tests under pytest 9.2's node ids), so no worker stops it: the run's
+    controller does at its end if it was not up at its start (tests/conftest.py)."""
     try:
         started = script("start", timeout=START_TIMEOUT_S)
     except subprocess.TimeoutExpired:
         pytest.fail(f"scripts/slurm_local.sh start did not return in {START_TIMEOUT_S} s")
     if started.returncode != 0:
         pytest.fail(f"scripts/slurm_local.sh start failed: {started.stderr.strip()}")
-    yield SlurmCluster()
-    if not was_up:
-        script("stop", timeout=120)
+    return SlurmCluster()

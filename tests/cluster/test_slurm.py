@@ -21,8 +21,6 @@ from aia.evaluation import search_objective
 from aia.logging import read_run
 from tests.cluster.conftest import TEST_RESOURCES
 
-pytestmark = pytest.mark.xdist_group("slurm")  # one worker: the cluster is started once
-
 # Tiny jobs: a warm-up episode of 50 steps and a training one, each followed by an evaluation of 2 worlds.
 EPISODES = 2
 TINY = (f"frames={50 * EPISODES}", "warmup_frames=50", "env.max_steps=50", "eval.episodes=2", "eval.per_rollout=1",
