@@ -37,12 +37,13 @@ KERNEL_CACHE_READY = "AIA_TEST_KERNEL_CACHE_READY"
 KERNEL_CACHE_WAIT_S = 600
 
 
-SLURM_SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "slurm_local.sh"
 _slurm_was_up: bool | None = None  # in the run's controller: whether the local SLURM cluster was up at its start
 
 
 def _slurm_up() -> bool:
-    return subprocess.run(["bash", str(SLURM_SCRIPT), "status"], capture_output=True, timeout=60).returncode == 0
+    from tests.cluster.conftest import script  # the cluster tests' own call of scripts/slurm_local.sh
+
+    return script("status", timeout=60).returncode == 0
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -82,7 +83,9 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     if ready:
         shutil.rmtree(Path(ready).parent, ignore_errors=True)
     if _slurm_was_up is False and _slurm_up():
-        subprocess.run(["bash", str(SLURM_SCRIPT), "stop"], capture_output=True, timeout=120)
+        from tests.cluster.conftest import script
+
+        script("stop", timeout=120)
 
 
 @pytest.fixture(scope="session", autouse=True)
