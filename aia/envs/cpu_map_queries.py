@@ -3,9 +3,10 @@ read only the cells an answer needs, run on torch's CPU threads (:mod:`aia.runti
 a compiled step as operators of their own (``aia::ray_walk``, ``aia::near_occupied``, ``aia::line_of_sight``).
 
 What makes them cheap is one distance field per map, over squares of ``BLOCK x BLOCK`` cells: each square's
-chessboard distance in squares to the nearest square holding an occupied cell (recomputed for the worlds whose maps
-change, at their reset; :func:`free_radius` turns it into a radius of cells around any cell that holds no
-obstacle), and each square's occupied cells as the bits of an int16. The grids of 4,096 maps (134 MB) do not fit
+chessboard distance in squares to the nearest square holding an occupied cell (made for the worlds whose maps
+change, at their reset, from the maps' runs of occupied cells: :func:`block_fields`; :func:`free_radius` turns it
+into a radius of cells around any cell that holds no obstacle), and each square's occupied cells as the bits of an
+int16. The grids of 4,096 maps (134 MB) do not fit
 in the caches; their distance fields and bits (8.7 and 17 MB) do.
 
 * **The closest obstacle in view** (:func:`ray_walk`): the first occupied cell along each ray in the field of
@@ -13,7 +14,9 @@ in the caches; their distance fields and bits (8.7 and 17 MB) do.
   cells), it was about 45 of the 57 ms of a compiled step of 4,096 worlds; the walk reads about 170 cells a world
   instead of 3,000. It reads cells in ray order and stops a ray at its first hit, and at the first cell farther
   than the nearest value found so far (the walls' distances included), which leaves the minimum over the rays and
-  its first index as they were; from a free cell it jumps over every cell within its free radius. The cells a ray
+  its first index as they were; from a free cell it jumps over every cell within its free radius. It walks first
+  the ray toward the last step's closest obstacle, which is most often near this step's: the other rays then stop
+  sooner (the walk of 4,096 worlds 4.4 -> 3.1 ms, against 3.2 ms with the true closest ray first). The cells a ray
   crosses are the same offsets from any start, and their ``|dcol|`` and ``|drow|`` never decrease, so the first
   cell beyond a radius is a lookup in two tables per ray.
 * **Collision** (:func:`near_occupied`): the map cells within ``margin`` of a point are read only when neither its
@@ -85,15 +88,19 @@ class CpuMapQueries:
         run_kernel(_block_distances_entry, worlds.shape[0],
                    (occupancy.contiguous(), worlds, self.block_distance, self.block_cells))
 
-    def hits(self, occupancy: Tensor, row: Tensor, col: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
+    def hits(self, occupancy: Tensor, row: Tensor, col: Tensor, bins: Tensor, bound: Tensor, lead: Tensor
+             ) -> Tensor:
         """``[B, ..., F]``: in world ``b``'s map, from the centre of each cell ``(row[b, ...], col[b, ...])``, along
         each ray ``bins[b, ..., F]``, the smaller of ``bound [B, ..., F]`` and the distance to where the ray
         enters its first occupied cell (leaving the grid is a hit). A ray whose first hit lies beyond its row's
-        minimum may keep its ``bound`` instead: the minimum and its first index are exact."""
+        minimum may keep its ``bound`` instead: the minimum and its first index are exact.
+
+        ``lead [B, ...]``: the position in ``F`` of the ray to walk first (-1: none), e.g. the one toward the last
+        step's closest obstacle. It changes which rays stop early, never the minimum or its first index."""
         F = bins.shape[-1]
         out = ray_walk(occupancy, self.block_distance, self.block_cells, row.reshape(-1), col.reshape(-1),
-                       bins.reshape(-1, F), bound.reshape(-1, F), self.cols, self.rows, self.distances, self.lengths,
-                       self.first_col, self.first_row, self.reach_distance)
+                       bins.reshape(-1, F), bound.reshape(-1, F), lead.reshape(-1), self.cols, self.rows,
+                       self.distances, self.lengths, self.first_col, self.first_row, self.reach_distance)
         return out.view(bound.shape)
 
     def near_occupied(self, occupancy: Tensor, fine_row: Tensor, fine_col: Tensor, margin: float,
@@ -137,20 +144,20 @@ def _reach_distances(distances: Tensor, lengths: Tensor, first_col: Tensor, firs
 
 @torch.library.custom_op("aia::ray_walk", mutates_args=())
 def ray_walk(occupancy: Tensor, block_distance: Tensor, block_cells: Tensor, row: Tensor, col: Tensor, bins: Tensor,
-             bound: Tensor, cols: Tensor, rows: Tensor, distances: Tensor, lengths: Tensor, first_col: Tensor,
-             first_row: Tensor, reach_distance: Tensor) -> Tensor:
-    """:meth:`CpuMapQueries.hits` of ``Q`` queries (``row``, ``col`` ``[Q]``, ``bins``, ``bound`` ``[Q, F]``), query
-    ``q`` in the map of world ``q // (Q // B)``: an operator of its own, opaque to ``torch.compile`` (a compiled
-    step calls it)."""
+             bound: Tensor, lead: Tensor, cols: Tensor, rows: Tensor, distances: Tensor, lengths: Tensor,
+             first_col: Tensor, first_row: Tensor, reach_distance: Tensor) -> Tensor:
+    """:meth:`CpuMapQueries.hits` of ``Q`` queries (``row``, ``col``, ``lead`` ``[Q]``, ``bins``, ``bound``
+    ``[Q, F]``), query ``q`` in the map of world ``q // (Q // B)``: an operator of its own, opaque to
+    ``torch.compile`` (a compiled step calls it)."""
     out = torch.empty_like(bound)
-    args = tuple(t.contiguous() for t in (occupancy, block_distance, block_cells, row, col, bins, bound, cols, rows,
-                                          distances, lengths, first_col, first_row, reach_distance))
+    args = tuple(t.contiguous() for t in (occupancy, block_distance, block_cells, row, col, bins, bound, lead, cols,
+                                          rows, distances, lengths, first_col, first_row, reach_distance))
     run_kernel(_walk_entry, row.shape[0], (*args, row.shape[0] // occupancy.shape[0], out, bound.element_size()))
     return out
 
 
 @ray_walk.register_fake
-def _(occupancy, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths, first_col,
+def _(occupancy, block_distance, block_cells, row, col, bins, bound, lead, cols, rows, distances, lengths, first_col,
       first_row, reach_distance):
     return torch.empty_like(bound)
 
@@ -191,50 +198,82 @@ def _(occupancy, block_cells, origin, target, wanted, fraction, cell):
 
 @numba.njit(cache=True, nogil=True)
 def _block_distances(occupied, worlds, out, cells, start, stop):  # pragma: no cover - compiled
-    """For each world ``w`` in ``worlds[start:stop]``: ``cells[w]``, each block's occupied cells
-    (:func:`occupied_cell`'s bits), and ``out[w]``, each block's chessboard distance in blocks to the nearest block
-    with an occupied cell (0: its own; 255 at most), by the two passes of a 3 x 3 chamfer with unit weights over
-    the blocks, bordered by a ring that is never nearer."""
+    """For each world ``w`` in ``worlds[start:stop]``: :func:`block_fields` of the runs of ``occupied[w]``."""
     ny, nx = occupied.shape[1], occupied.shape[2]
-    nby, nbx = out.shape[1], out.shape[2]
-    far = np.empty((nby + 2, nbx + 2), dtype=np.int32)
-    row_bits = np.empty((nby, nbx), dtype=np.int32)
+    runs = np.empty((ny * ((nx + 1) // 2), 3), dtype=np.int64)
+    far, bits = block_scratch(out.shape[1], out.shape[2])
     for w in worlds[start:stop]:
-        far[:] = 255
-        row_bits[:] = 0
-        for r in range(ny):
-            shift = (r & (BLOCK - 1)) << BLOCK_SHIFT
-            bits = row_bits[r >> BLOCK_SHIFT]
-            for j in range(nx >> BLOCK_SHIFT):  # the whole blocks: a row's BLOCK cells at once
-                c = j << BLOCK_SHIFT
-                part = np.int32(0)
-                for k in range(BLOCK):
-                    part |= np.int32(occupied[w, r, c + k]) << k
-                bits[j] |= part << shift
-            for c in range((nx >> BLOCK_SHIFT) << BLOCK_SHIFT, nx):
-                bits[c >> BLOCK_SHIFT] |= np.int32(occupied[w, r, c]) << (shift + (c & (BLOCK - 1)))
-        for i in range(nby):
-            for j in range(nbx):
-                bits = row_bits[i, j]
-                cells[w, i, j] = np.int16(bits if bits < 1 << 15 else bits - (1 << 16))
-                if bits:
-                    far[i + 1, j + 1] = 0
-        for i in range(1, nby + 1):
-            for j in range(1, nbx + 1):
-                far[i, j] = min(far[i, j], far[i - 1, j - 1] + 1, far[i - 1, j] + 1, far[i - 1, j + 1] + 1,
-                                far[i, j - 1] + 1)
-        for i in range(nby, 0, -1):
-            for j in range(nbx, 0, -1):
-                far[i, j] = min(far[i, j], far[i + 1, j + 1] + 1, far[i + 1, j] + 1, far[i + 1, j - 1] + 1,
-                                far[i, j + 1] + 1)
-        for i in range(nby):
-            for j in range(nbx):
-                out[w, i, j] = min(far[i + 1, j + 1], 255)
+        block_fields(runs[:grid_runs(occupied[w], runs)], out[w], cells[w], far, bits)
 
 
 @numba.njit(cache=True, nogil=True)
-def _walk(occupied, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths, first_col,
-          first_row, reach_distance, per_world, out, start, stop):  # pragma: no cover - compiled
+def grid_runs(grid, runs):  # pragma: no cover - compiled
+    """Write the occupied runs of ``grid [ny, nx]`` (row, first and last column of each, row by row, left to right)
+    into ``runs`` (at least ``ny * ceil(nx / 2)`` rows) and return their number."""
+    ny, nx = grid.shape
+    n = 0
+    for r in range(ny):
+        col = 0
+        while col < nx:
+            if grid[r, col]:
+                lo = col
+                while col < nx and grid[r, col]:
+                    col += 1
+                runs[n, 0], runs[n, 1], runs[n, 2] = r, lo, col - 1
+                n += 1
+            col += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def block_scratch(nby, nbx):  # pragma: no cover - compiled
+    """The scratch arrays :func:`block_fields` takes for maps of ``nby x nbx`` blocks."""
+    return np.empty((nby + 2, nbx + 2), dtype=np.int32), np.empty((nby, nbx), dtype=np.int32)
+
+
+@numba.njit(cache=True, nogil=True)
+def block_fields(runs, distance, cells, far, bits):  # pragma: no cover - compiled
+    """A map's :attr:`CpuMapQueries.block_cells` into ``cells [nby, nbx]`` and :attr:`CpuMapQueries.block_distance`
+    into ``distance [nby, nbx]`` from its occupied cells, given as ``runs [n, 3]`` (row, first and last column;
+    in any order, overlaps allowed): each block's occupied cells as bits (:func:`occupied_cell`), and its chessboard
+    distance in blocks to the nearest block with an occupied cell (0: its own; 255 at most) by the two passes of a
+    3 x 3 chamfer with unit weights over the blocks, bordered by a ring that is never nearer. ``far`` and ``bits``:
+    :func:`block_scratch`.
+
+    Made from the runs, not the grid: a generated map's runs are at hand while it is drawn (a grid of 181 x 181
+    cells has about 150), so new maps for 4,096 worlds skip reading their 134 MB of grids again."""
+    nby, nbx = distance.shape
+    far[:] = 255
+    bits[:] = 0
+    for k in range(runs.shape[0]):
+        r, lo, hi = runs[k, 0], runs[k, 1], runs[k, 2]
+        shift = (r & (BLOCK - 1)) << BLOCK_SHIFT
+        row_bits = bits[r >> BLOCK_SHIFT]
+        for j in range(lo >> BLOCK_SHIFT, (hi >> BLOCK_SHIFT) + 1):
+            first, last = max(lo, j << BLOCK_SHIFT), min(hi, (j << BLOCK_SHIFT) + BLOCK - 1)
+            row_bits[j] |= (((1 << (last - first + 1)) - 1) << (first & (BLOCK - 1))) << shift
+    for i in range(nby):
+        for j in range(nbx):
+            value = bits[i, j]
+            cells[i, j] = np.int16(value if value < 1 << 15 else value - (1 << 16))
+            if value:
+                far[i + 1, j + 1] = 0
+    for i in range(1, nby + 1):
+        for j in range(1, nbx + 1):
+            far[i, j] = min(far[i, j], far[i - 1, j - 1] + 1, far[i - 1, j] + 1, far[i - 1, j + 1] + 1,
+                            far[i, j - 1] + 1)
+    for i in range(nby, 0, -1):
+        for j in range(nbx, 0, -1):
+            far[i, j] = min(far[i, j], far[i + 1, j + 1] + 1, far[i + 1, j] + 1, far[i + 1, j - 1] + 1,
+                            far[i, j + 1] + 1)
+    for i in range(nby):
+        for j in range(nbx):
+            distance[i, j] = min(far[i + 1, j + 1], 255)
+
+
+@numba.njit(cache=True, nogil=True)
+def _walk(occupied, block_distance, block_cells, row, col, bins, bound, lead, cols, rows, distances, lengths,
+          first_col, first_row, reach_distance, per_world, out, start, stop):  # pragma: no cover - compiled
     ny, nx = occupied.shape[1], occupied.shape[2]
     for q in range(start, stop):
         w = q // per_world
@@ -248,7 +287,12 @@ def _walk(occupied, block_distance, block_cells, row, col, bins, bound, cols, ro
         if origin_radius < reach_distance.shape[0] and reach_distance[origin_radius] > best:
             out[q] = bound[q]
             continue
-        for f in range(bins.shape[1]):
+        # The lead ray first: a near hit there stops the others sooner.
+        first = lead[q]
+        for k in range(-1, bins.shape[1]):
+            f = first if k < 0 else k
+            if f < 0 or (k >= 0 and k == first):
+                continue
             b = bins[q, f]
             value = bound[q, f]
             i, n = 0, lengths[b]
@@ -408,18 +452,20 @@ def _walk_share(data, dtype):  # pragma: no cover - compiled
     d = descriptor(data)
     occupied, block_distance, block_cells = array3(d, 0, np.bool_), array3(d, 1, np.uint8), array3(d, 2, np.int16)
     row, col, bins, bound = array1(d, 3, np.int64), array1(d, 4, np.int64), array2(d, 5, np.int64), array2(d, 6, dtype)
-    cols, rows, distances = array2(d, 7, np.int16), array2(d, 8, np.int16), array2(d, 9, dtype)
-    lengths, first_col, first_row = array1(d, 10, np.int64), array2(d, 11, np.int16), array2(d, 12, np.int16)
-    reach_distance, per_world, out = array1(d, 13, dtype), integer(d, 14), array2(d, 15, dtype)
-    in_chunks(d, _walk, (occupied, block_distance, block_cells, row, col, bins, bound, cols, rows, distances, lengths,
-                         first_col, first_row, reach_distance, per_world, out))
+    lead, cols, rows = array1(d, 7, np.int64), array2(d, 8, np.int16), array2(d, 9, np.int16)
+    distances, lengths = array2(d, 10, dtype), array1(d, 11, np.int64)
+    first_col, first_row, reach_distance = array2(d, 12, np.int16), array2(d, 13, np.int16), array1(d, 14, dtype)
+    per_world, out = integer(d, 15), array2(d, 16, dtype)
+    in_chunks(d, _walk, (occupied, block_distance, block_cells, row, col, bins, bound, lead, cols, rows, distances,
+                         lengths, first_col, first_row, reach_distance, per_world, out))
 
 
-@kernel_entry("bool[3]", "uint8[3]", "int16[3]", "int64[1]", "int64[1]", "int64[2]", "real[2]", "int16[2]",
-              "int16[2]", "real[2]", "int64[1]", "int16[2]", "int16[2]", "real[1]", "int", "real[2]", "real_size")
+@kernel_entry("bool[3]", "uint8[3]", "int16[3]", "int64[1]", "int64[1]", "int64[2]", "real[2]", "int64[1]",
+              "int16[2]", "int16[2]", "real[2]", "int64[1]", "int16[2]", "int16[2]", "real[1]", "int", "real[2]",
+              "real_size")
 def _walk_entry(data):  # pragma: no cover - compiled
-    """:func:`_walk_share` in the dtype whose size in bytes is argument 16."""
-    in_float_dtype(data, 16, _walk_share)
+    """:func:`_walk_share` in the dtype whose size in bytes is argument 17."""
+    in_float_dtype(data, 17, _walk_share)
 
 
 @kernel_entry("bool[3]", "uint8[3]", "int64[1]", "int64[1]", "float", "float", "int", "bool[1]")

@@ -96,11 +96,13 @@ class Geometry(ABC):
         """Whether the map cells at flat indices ``index`` (into each world's own grid) are occupied."""
 
     @abstractmethod
-    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
+    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor,
+                       last: tuple[Tensor, Tensor] | None = None) -> Tensor:
         """``[..., F]`` the smaller of ``bound [..., F]`` and the distance along each bin's ray from the centre of
         the robot's cell to the first occupied cell (none within the sensor range: ``bound``; leaving the grid is
         a hit). A geometry may leave a ray whose first hit lies beyond the minimum over ``[..., F]`` at its
-        ``bound``: the minimum and its first index are what :meth:`closest_obstacle` reads."""
+        ``bound``: the minimum and its first index are what :meth:`closest_obstacle` reads. ``last``: see
+        :meth:`closest_obstacle`."""
 
     def select(self, worlds: Tensor) -> Geometry:
         """This geometry for queries whose leading dimension runs over ``worlds [K]`` (world indices in any
@@ -154,11 +156,13 @@ class Geometry(ABC):
         return torch.linspace(0.0, 1.0, samples, dtype=self.dtype, device=self.device)
 
     # ------------------------------------------------------------ obstacles
-    def closest_obstacle(self, pose: Tensor) -> Tensor:
+    def closest_obstacle(self, pose: Tensor, last: tuple[Tensor, Tensor] | None = None) -> Tensor:
         """``[..., 2]`` (distance, bearing) of the closest obstacle point in the field of view and range.
 
         Obstacles are occupied cells and the walls (the bounds shrunk by ``margin``). Where nothing lies
-        within range the result is ``(sensor_range, pi)``, SPEC 6's "no obstacle" value.
+        within range the result is ``(sensor_range, pi)``, SPEC 6's "no obstacle" value. ``last``: the last
+        step's ``(pose, result)``, whose closest obstacle is likely near this one's: a geometry that walks its
+        rays walks the ray toward it first. It changes the work, never the result.
         """
         heading = pose[..., 2:3]
         first = torch.ceil((heading - 0.5 * self.fov) / self.bin_width).long()
@@ -166,7 +170,7 @@ class Geometry(ABC):
         angles = bins.to(self.dtype) * self.bin_width
         distance = self._wall_distance(pose[..., :2], angles)
         if self.has_obstacles:
-            distance = self._obstacle_hits(pose, bins, distance)
+            distance = self._obstacle_hits(pose, bins, distance, last)
         best, arg = distance.min(-1)
         bearing = wrap_angle(torch.gather(angles, -1, arg.unsqueeze(-1)).squeeze(-1) - pose[..., 2])
         seen = best <= self.sensor_range
@@ -228,7 +232,8 @@ class MapGeometry(Geometry):
     def occupied(self, index: Tensor) -> Tensor:
         return self.occupancy.flatten()[index]
 
-    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
+    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor,
+                       last: tuple[Tensor, Tensor] | None = None) -> Tensor:
         cell = self._cell_index(pose[..., :2], self.resolution, self.shape)
         return torch.minimum(bound, self.ray_table[cell.unsqueeze(-1), bins])
 
@@ -337,9 +342,9 @@ class WorldMapGeometry(Geometry):
             self.set_maps(worlds, *layouts.generate(keys))
             return
         row_starts = torch.empty_like(self._start_rows)
-        layouts.generate(keys, worlds, (self.occupancy, self.start_cells, row_starts))
+        layouts.generate(keys, worlds, (self.occupancy, self.start_cells, row_starts),
+                         (self._cpu.block_distance, self._cpu.block_cells))
         self._start_rows[worlds] = row_starts[worlds].cumsum(-1)
-        self._cpu.update(self.occupancy, worlds)
 
     def select(self, worlds: Tensor) -> WorldMapGeometry:
         view = copy.copy(self)
@@ -361,10 +366,11 @@ class WorldMapGeometry(Geometry):
     def _occupied_cells(self, row: Tensor, col: Tensor) -> Tensor:
         return self.occupied(row * self.shape[1] + col)
 
-    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor) -> Tensor:
+    def _obstacle_hits(self, pose: Tensor, bins: Tensor, bound: Tensor,
+                       last: tuple[Tensor, Tensor] | None = None) -> Tensor:
         row, col = self._cell_rows_cols(pose[..., :2], self.resolution, self.shape)
         if self._cpu is not None:
-            return self._cpu.hits(self.occupancy, row, col, bins, bound)
+            return self._cpu.hits(self.occupancy, row, col, bins, bound, self._lead_ray(pose, bins, last))
         return torch.minimum(bound, self._gathered_hits(row, col, bins))
 
     def _gathered_hits(self, row: Tensor, col: Tensor, bins: Tensor) -> Tensor:
@@ -374,6 +380,20 @@ class WorldMapGeometry(Geometry):
         (ny, nx), inside = self.shape, (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
         hit = self._occupied_cells(rows.clamp(0, ny - 1), cols.clamp(0, nx - 1)) | ~inside
         return torch.where(hit, self._ray_distances[bins], math.inf).amin(-1)
+
+    def _lead_ray(self, pose: Tensor, bins: Tensor, last: tuple[Tensor, Tensor] | None) -> Tensor:
+        """``[B, ...]`` the position in ``bins [B, ..., F]`` of the ray from ``pose`` toward the point of the last
+        closest obstacle (``last``: its ``(pose, (range, bearing))``), -1 where that ray is out of view or without
+        ``last``: the ray the walk takes first."""
+        if last is None:
+            return torch.full(bins.shape[:-1], -1, dtype=torch.int64, device=self.device)
+        last_pose, polar = last
+        angle = last_pose[..., 2] + polar[..., 1]
+        point = last_pose[..., :2] + polar[..., :1] * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
+        offset = point - pose[..., :2]
+        nearest = torch.round(torch.atan2(offset[..., 1], offset[..., 0]) / self.bin_width).long()
+        lead = torch.remainder(nearest - bins[..., 0], self.num_bins)
+        return torch.where(lead < bins.shape[-1], lead, -1)
 
     def in_collision(self, xy: Tensor) -> Tensor:
         """Whether each position ``[B, ..., 2]`` is within ``margin`` of the bounds or of an occupied cell of its

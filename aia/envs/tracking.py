@@ -363,9 +363,11 @@ class TargetTrackingEnv(EnvBase):
         beliefs = self.belief_filter.step(
             {k: state[k] for k in self._filter_keys}, measurement, observed, pose, key, step)
         logdet = belief.logdet(beliefs["belief_cov"])
+        # the last closest obstacle: where a geometry that walks its rays looks first
+        obstacle_polar = geom.closest_obstacle(pose, (state["robot_pose"], state["obstacle_polar"]))
         fields = dict(robot_pose=pose, robot_velocity=velocity, **beliefs,
                       **self._belief_velocity(beliefs["belief_mean"]), logdet_cov=logdet, observed=observed,
-                      collision=collision, obstacle_polar=geom.closest_obstacle(pose), target_state=targets)
+                      collision=collision, obstacle_polar=obstacle_polar, target_state=targets)
         reward = -logdet.mean(-1, keepdim=True)
         truncated = (step >= cfg.max_steps).unsqueeze(-1)
         return fields, reward, truncated

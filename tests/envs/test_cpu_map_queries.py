@@ -48,8 +48,9 @@ def test_each_walked_ray_is_the_gathered_ray():
     row, col = geometry._cell_rows_cols(pose[..., :2], geometry.resolution, geometry.shape)
     bins = _bins(geometry, pose)
     gathered = geometry._gathered_hits(row, col, bins)
+    no_lead = torch.full((6, 400), -1)
     walked = torch.stack([geometry._cpu.hits(geometry.occupancy, row, col, bins[..., f:f + 1],
-                                              torch.full((6, 400, 1), math.inf))[..., 0]
+                                              torch.full((6, 400, 1), math.inf), no_lead)[..., 0]
                           for f in range(bins.shape[-1])], -1)
     assert torch.equal(walked, gathered)
     finite = torch.isfinite(gathered)
@@ -67,6 +68,29 @@ def test_closest_obstacle_walked_equals_gathered_eager_and_compiled():
     gathered_compiled = torch.compile(geometry.closest_obstacle, fullgraph=True, dynamic=False)(pose)
     assert torch.equal(walked, gathered) and torch.equal(walked_compiled, gathered_compiled)
     assert (walked[..., 0] < RANGE).float().mean() > 0.5
+
+
+def test_the_lead_ray_changes_no_closest_obstacle():
+    """Whatever ray the walk takes first (toward the true closest obstacle, a point beside it, anywhere, or none),
+    the minimum and its first index are the same, in eager mode and compiled (each against itself: inductor's
+    wall arithmetic may round differently from eager's); and the lead is the ray toward the last obstacle."""
+    geometry, pose = _maps()
+    walked = geometry.closest_obstacle(pose)
+    anywhere = torch.rand(6, 400, 2, generator=torch.Generator().manual_seed(1)) * torch.tensor([10.0, math.pi])
+    compiled = torch.compile(geometry.closest_obstacle, fullgraph=True, dynamic=False)
+    walked_compiled = compiled(pose, (pose, torch.zeros_like(anywhere)))  # toward the robot: a ray, not the best
+    moved = pose + torch.tensor([0.7, -0.4, 0.3])
+    for last in ((pose, walked), (moved, walked), (pose, anywhere), (moved, anywhere)):
+        assert torch.equal(geometry.closest_obstacle(pose, last), walked)
+        assert torch.equal(compiled(pose, last), walked_compiled)
+    bins = _bins(geometry, pose)
+    lead = geometry._lead_ray(pose, bins, (pose, walked))
+    seen = (walked[..., 0] < RANGE) & (walked[..., 0] > 0)  # at distance 0 the point is the robot's
+    assert (lead[seen] >= 0).all()
+    lead_angle = torch.gather(bins, -1, lead.clamp_min(0)[..., None])[..., 0] * geometry.bin_width
+    offset = torch.remainder(lead_angle - pose[..., 2] - walked[..., 1] + math.pi, 2 * math.pi) - math.pi
+    assert (offset[seen].abs() <= geometry.bin_width / 2 + 1e-5).all()
+    assert (geometry._lead_ray(pose, bins, None) == -1).all()
 
 
 def _blocks(occupancy: torch.Tensor) -> torch.Tensor:

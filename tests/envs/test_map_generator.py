@@ -3,6 +3,8 @@ starts in free connected space, one-line errors."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -11,7 +13,8 @@ from scipy import ndimage
 from aia.config.errors import ConfigError
 from aia.envs import make_env
 from aia.envs.config import RandomMapConfig
-from aia.envs.map_generator import RandomObstacles, start_cells
+from aia.envs.map_generator import RandomObstacles, _rectangle, start_cells
+from aia.envs.sensing import WorldMapGeometry
 
 MARGIN = 0.5
 # A small map keeps the tests quick: 12 m at 0.25 m, 3-5 obstacles.
@@ -72,6 +75,50 @@ def test_start_cells_are_the_largest_connected_group_of_free_cells():
         labels, _ = ndimage.label(_whole_square_free(occ, 0.25))  # 4-connected groups
         sizes = np.bincount(labels.ravel())[1:]
         np.testing.assert_array_equal(start, labels == sizes.argmax() + 1)
+
+
+@pytest.mark.parametrize("angle", [0.0, math.pi / 2, -math.pi, 3e-9, 2e-6, 0.3, -2.2, math.pi / 4])
+def test_a_rectangles_runs_are_its_cells_whose_centre_it_holds(angle):
+    """The runs are, row by row, the first to the last cell of the bounding box whose centre passes the rectangle's
+    test (brute force over every cell), for angles along the axes, near them (each side of the steep cut) and
+    between; thin rectangles (under a cell wide) and ones that stick out of the map included."""
+    resolution, shape = 0.2, (60, 70)
+    generator = np.random.default_rng(7)
+    for _ in range(40):
+        cx, cy = generator.uniform(-1.0, 15.0), generator.uniform(-1.0, 13.0)
+        lx, ly = generator.uniform(-1.0, 1.0, 2)
+        hx, hy = generator.uniform(0.05, 3.0), generator.uniform(0.05, 1.0)
+        grid = np.zeros(shape, dtype=np.bool_)
+        runs = np.zeros((shape[0], 3), dtype=np.int64)
+        n = _rectangle(grid, runs, 0, resolution, cx, cy, angle, lx, ly, hx, hy)
+        c, s = math.cos(angle), math.sin(angle)
+        wx, wy = cx + lx * c - ly * s, cy + lx * s + ly * c
+        ex, ey = abs(c) * hx + abs(s) * hy, abs(s) * hx + abs(c) * hy
+        rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
+        dx, dy = (cols + 0.5) * resolution - wx, (rows + 0.5) * resolution - wy
+        inside = (np.abs(dx * c + dy * s) <= hx) & (np.abs(-dx * s + dy * c) <= hy)
+        inside &= (cols >= math.ceil((wx - ex) / resolution - 0.5)) & (cols <= math.floor((wx + ex) / resolution - 0.5))
+        inside &= (rows >= math.ceil((wy - ey) / resolution - 0.5)) & (rows <= math.floor((wy + ey) / resolution - 0.5))
+        expected = [(r, np.flatnonzero(inside[r])[0], np.flatnonzero(inside[r])[-1]) for r in range(shape[0])
+                    if inside[r].any()]
+        assert [tuple(run) for run in runs[:n].tolist()] == expected
+        hull = np.zeros(shape, dtype=np.bool_)
+        for r, lo, hi in expected:
+            hull[r, lo:hi + 1] = True
+        np.testing.assert_array_equal(grid, hull)
+
+
+def test_drawn_block_fields_are_the_grids_fields():
+    """The block fields a CPU env's maps get as they are drawn (from their runs) equal those made from their grids."""
+    layouts = _layouts()
+    drawn = WorldMapGeometry(6, (12.0, 12.0), 0.25, MARGIN, 6.0, 2.0, 0.05)
+    drawn.draw_maps(torch.arange(6), layouts, torch.arange(6) * 31 + 1)
+    from_grids = WorldMapGeometry(6, (12.0, 12.0), 0.25, MARGIN, 6.0, 2.0, 0.05)
+    from_grids.set_maps(torch.arange(6), drawn.occupancy, drawn.start_cells)
+    assert drawn._cpu.block_distance.min() == 0 and drawn._cpu.block_cells.ne(0).any()
+    assert torch.equal(drawn._cpu.block_distance, from_grids._cpu.block_distance)
+    assert torch.equal(drawn._cpu.block_cells, from_grids._cpu.block_cells)
+    assert torch.equal(drawn._start_rows, from_grids._start_rows)
 
 
 def test_env_maps_per_world_episode_and_batch():
