@@ -69,7 +69,7 @@ class CpuMapQueries:
 
     def __init__(self, num_worlds: int, shape: tuple[int, int], resolution: float, ray_cols: Tensor,
                  ray_rows: Tensor, ray_distances: Tensor) -> None:
-        self.resolution = resolution
+        self.shape, self.resolution = shape, resolution
         self.distances = ray_distances.cpu()
         self.lengths = torch.isfinite(self.distances).sum(-1)
         # The walk's tables in int16, to stay in the core's caches (a ray of up to 32,767 cells).
@@ -88,8 +88,7 @@ class CpuMapQueries:
         run_kernel(_block_distances_entry, worlds.shape[0],
                    (occupancy.contiguous(), worlds, self.block_distance, self.block_cells))
 
-    def hits(self, occupancy: Tensor, row: Tensor, col: Tensor, bins: Tensor, bound: Tensor, lead: Tensor
-             ) -> Tensor:
+    def hits(self, row: Tensor, col: Tensor, bins: Tensor, bound: Tensor, lead: Tensor) -> Tensor:
         """``[B, ..., F]``: in world ``b``'s map, from the centre of each cell ``(row[b, ...], col[b, ...])``, along
         each ray ``bins[b, ..., F]``, the smaller of ``bound [B, ..., F]`` and the distance to where the ray
         enters its first occupied cell (leaving the grid is a hit). A ray whose first hit lies beyond its row's
@@ -98,7 +97,7 @@ class CpuMapQueries:
         ``lead [B, ...]``: the position in ``F`` of the ray to walk first (-1: none), e.g. the one toward the last
         step's closest obstacle. It changes which rays stop early, never the minimum or its first index."""
         F = bins.shape[-1]
-        out = ray_walk(occupancy, self.block_distance, self.block_cells, row.reshape(-1), col.reshape(-1),
+        out = ray_walk(self.block_distance, self.block_cells, *self.shape, row.reshape(-1), col.reshape(-1),
                        bins.reshape(-1, F), bound.reshape(-1, F), lead.reshape(-1), self.cols, self.rows,
                        self.distances, self.lengths, self.first_col, self.first_row, self.reach_distance)
         return out.view(bound.shape)
@@ -112,13 +111,12 @@ class CpuMapQueries:
                             self.resolution, margin, supersample)
         return out.view(fine_row.shape)
 
-    def line_of_sight(self, occupancy: Tensor, origin: Tensor, target: Tensor, wanted: Tensor, fraction: Tensor
-                      ) -> Tensor:
+    def line_of_sight(self, origin: Tensor, target: Tensor, wanted: Tensor, fraction: Tensor) -> Tensor:
         """``[B, ...]``: where ``wanted [B, ...]``, whether no sample ``origin + (target - origin) * fraction[k]``
         (``[B, ..., 2]``) of the segment lies in an occupied cell of its world's map (False elsewhere):
         :meth:`aia.envs.sensing.Geometry.line_of_sight`, bit for bit."""
         cell = torch.tensor([self.resolution], dtype=origin.dtype)
-        out = line_of_sight(occupancy, self.block_cells, origin.reshape(-1, 2), target.reshape(-1, 2),
+        out = line_of_sight(self.block_cells, *self.shape, origin.reshape(-1, 2), target.reshape(-1, 2),
                             wanted.reshape(-1), fraction.cpu(), cell)
         return out.view(wanted.shape)
 
@@ -143,21 +141,22 @@ def _reach_distances(distances: Tensor, lengths: Tensor, first_col: Tensor, firs
 
 
 @torch.library.custom_op("aia::ray_walk", mutates_args=())
-def ray_walk(occupancy: Tensor, block_distance: Tensor, block_cells: Tensor, row: Tensor, col: Tensor, bins: Tensor,
+def ray_walk(block_distance: Tensor, block_cells: Tensor, ny: int, nx: int, row: Tensor, col: Tensor, bins: Tensor,
              bound: Tensor, lead: Tensor, cols: Tensor, rows: Tensor, distances: Tensor, lengths: Tensor,
              first_col: Tensor, first_row: Tensor, reach_distance: Tensor) -> Tensor:
     """:meth:`CpuMapQueries.hits` of ``Q`` queries (``row``, ``col``, ``lead`` ``[Q]``, ``bins``, ``bound``
-    ``[Q, F]``), query ``q`` in the map of world ``q // (Q // B)``: an operator of its own, opaque to
-    ``torch.compile`` (a compiled step calls it)."""
+    ``[Q, F]``), query ``q`` in the map (``ny x nx`` cells) of world ``q // (Q // B)``: an operator of its own,
+    opaque to ``torch.compile`` (a compiled step calls it)."""
     out = torch.empty_like(bound)
-    args = tuple(t.contiguous() for t in (occupancy, block_distance, block_cells, row, col, bins, bound, lead, cols,
-                                          rows, distances, lengths, first_col, first_row, reach_distance))
-    run_kernel(_walk_entry, row.shape[0], (*args, row.shape[0] // occupancy.shape[0], out, bound.element_size()))
+    args = tuple(t.contiguous() for t in (row, col, bins, bound, lead, cols, rows, distances, lengths, first_col,
+                                          first_row, reach_distance))
+    run_kernel(_walk_entry, row.shape[0], (block_distance, block_cells, ny, nx, *args,
+                                           row.shape[0] // block_distance.shape[0], out, bound.element_size()))
     return out
 
 
 @ray_walk.register_fake
-def _(occupancy, block_distance, block_cells, row, col, bins, bound, lead, cols, rows, distances, lengths, first_col,
+def _(block_distance, block_cells, ny, nx, row, col, bins, bound, lead, cols, rows, distances, lengths, first_col,
       first_row, reach_distance):
     return torch.empty_like(bound)
 
@@ -180,19 +179,20 @@ def _(occupancy, block_distance, fine_row, fine_col, resolution, margin, supersa
 
 
 @torch.library.custom_op("aia::line_of_sight", mutates_args=())
-def line_of_sight(occupancy: Tensor, block_cells: Tensor, origin: Tensor, target: Tensor, wanted: Tensor,
+def line_of_sight(block_cells: Tensor, ny: int, nx: int, origin: Tensor, target: Tensor, wanted: Tensor,
                   fraction: Tensor, cell: Tensor) -> Tensor:
     """:meth:`CpuMapQueries.line_of_sight` of ``Q`` segments (``origin``, ``target`` ``[Q, 2]``, ``wanted [Q]``),
-    segment ``q`` in the map of world ``q // (Q // B)``, with the cell size ``cell [1]`` in their dtype."""
+    segment ``q`` in the map (``ny x nx`` cells) of world ``q // (Q // B)``, with the cell size ``cell [1]`` in
+    their dtype."""
     out = torch.empty(wanted.shape, dtype=torch.bool)
-    run_kernel(_sight_entry, wanted.shape[0], (occupancy.contiguous(), block_cells, origin.contiguous(),
-                                               target.contiguous(), wanted.contiguous(), fraction.contiguous(), cell,
-                                               out, origin.element_size()))
+    run_kernel(_sight_entry, wanted.shape[0], (block_cells, ny, nx, origin.contiguous(), target.contiguous(),
+                                               wanted.contiguous(), fraction.contiguous(), cell, out,
+                                               origin.element_size()))
     return out
 
 
 @line_of_sight.register_fake
-def _(occupancy, block_cells, origin, target, wanted, fraction, cell):
+def _(block_cells, ny, nx, origin, target, wanted, fraction, cell):
     return torch.empty(wanted.shape, dtype=torch.bool, device=wanted.device)
 
 
@@ -272,9 +272,8 @@ def block_fields(runs, distance, cells, far, bits):  # pragma: no cover - compil
 
 
 @numba.njit(cache=True, nogil=True)
-def _walk(occupied, block_distance, block_cells, row, col, bins, bound, lead, cols, rows, distances, lengths,
+def _walk(block_distance, block_cells, ny, nx, row, col, bins, bound, lead, cols, rows, distances, lengths,
           first_col, first_row, reach_distance, per_world, out, start, stop):  # pragma: no cover - compiled
-    ny, nx = occupied.shape[1], occupied.shape[2]
     for q in range(start, stop):
         w = q // per_world
         r0, c0 = row[q], col[q]
@@ -414,12 +413,12 @@ def fine_cell_near_occupied(occupied, fine_row, fine_col, resolution, supersampl
 
 
 @numba.njit(cache=True, nogil=True)
-def _sight(occupied, block_cells, origin, target, wanted, fraction, cell, out, start,
+def _sight(block_cells, ny, nx, origin, target, wanted, fraction, cell, out, start,
            stop):  # pragma: no cover - compiled
     """``out[q]`` for ``q`` in ``start..stop - 1``: whether segment ``q`` is wanted and none of its samples lies in an
-    occupied cell of the map of world ``q // (Q // B)``, in the dtype of ``origin`` (as eager torch computes it)."""
-    ny, nx = occupied.shape[1], occupied.shape[2]
-    per_world = origin.shape[0] // occupied.shape[0]
+    occupied cell of the map (``ny x nx`` cells) of world ``q // (Q // B)``, in the dtype of ``origin`` (as eager
+    torch computes it)."""
+    per_world = origin.shape[0] // block_cells.shape[0]
     size = cell[0]
     for q in range(start, stop):
         clear = wanted[q]
@@ -450,22 +449,22 @@ def _walk_share(data, dtype):  # pragma: no cover - compiled
     """:func:`_walk` of the arguments of :func:`ray_walk` and ``(per_world, out)``, chunk by chunk of the queries,
     with ``bound``, ``distances`` and ``out`` of ``dtype``."""
     d = descriptor(data)
-    occupied, block_distance, block_cells = array3(d, 0, np.bool_), array3(d, 1, np.uint8), array3(d, 2, np.int16)
-    row, col, bins, bound = array1(d, 3, np.int64), array1(d, 4, np.int64), array2(d, 5, np.int64), array2(d, 6, dtype)
-    lead, cols, rows = array1(d, 7, np.int64), array2(d, 8, np.int16), array2(d, 9, np.int16)
-    distances, lengths = array2(d, 10, dtype), array1(d, 11, np.int64)
-    first_col, first_row, reach_distance = array2(d, 12, np.int16), array2(d, 13, np.int16), array1(d, 14, dtype)
-    per_world, out = integer(d, 15), array2(d, 16, dtype)
-    in_chunks(d, _walk, (occupied, block_distance, block_cells, row, col, bins, bound, lead, cols, rows, distances,
-                         lengths, first_col, first_row, reach_distance, per_world, out))
+    block_distance, block_cells = array3(d, 0, np.uint8), array3(d, 1, np.int16)
+    row, col, bins, bound = array1(d, 4, np.int64), array1(d, 5, np.int64), array2(d, 6, np.int64), array2(d, 7, dtype)
+    lead, cols, rows = array1(d, 8, np.int64), array2(d, 9, np.int16), array2(d, 10, np.int16)
+    distances, lengths = array2(d, 11, dtype), array1(d, 12, np.int64)
+    first_col, first_row, reach_distance = array2(d, 13, np.int16), array2(d, 14, np.int16), array1(d, 15, dtype)
+    per_world, out = integer(d, 16), array2(d, 17, dtype)
+    in_chunks(d, _walk, (block_distance, block_cells, integer(d, 2), integer(d, 3), row, col, bins, bound, lead, cols,
+                         rows, distances, lengths, first_col, first_row, reach_distance, per_world, out))
 
 
-@kernel_entry("bool[3]", "uint8[3]", "int16[3]", "int64[1]", "int64[1]", "int64[2]", "real[2]", "int64[1]",
+@kernel_entry("uint8[3]", "int16[3]", "int", "int", "int64[1]", "int64[1]", "int64[2]", "real[2]", "int64[1]",
               "int16[2]", "int16[2]", "real[2]", "int64[1]", "int16[2]", "int16[2]", "real[1]", "int", "real[2]",
               "real_size")
 def _walk_entry(data):  # pragma: no cover - compiled
-    """:func:`_walk_share` in the dtype whose size in bytes is argument 17."""
-    in_float_dtype(data, 17, _walk_share)
+    """:func:`_walk_share` in the dtype whose size in bytes is argument 18."""
+    in_float_dtype(data, 18, _walk_share)
 
 
 @kernel_entry("bool[3]", "uint8[3]", "int64[1]", "int64[1]", "float", "float", "int", "bool[1]")
@@ -483,13 +482,13 @@ def _sight_share(data, dtype):  # pragma: no cover - compiled
     """:func:`_sight` of the arguments of :func:`line_of_sight` and ``out``, chunk by chunk of the segments, with
     ``origin``, ``target``, ``fraction`` and ``cell`` of ``dtype``."""
     d = descriptor(data)
-    occupied, block_cells = array3(d, 0, np.bool_), array3(d, 1, np.int16)
-    origin, target, wanted = array2(d, 2, dtype), array2(d, 3, dtype), array1(d, 4, np.bool_)
-    fraction, cell, out = array1(d, 5, dtype), array1(d, 6, dtype), array1(d, 7, np.bool_)
-    in_chunks(d, _sight, (occupied, block_cells, origin, target, wanted, fraction, cell, out))
+    block_cells, ny, nx = array3(d, 0, np.int16), integer(d, 1), integer(d, 2)
+    origin, target, wanted = array2(d, 3, dtype), array2(d, 4, dtype), array1(d, 5, np.bool_)
+    fraction, cell, out = array1(d, 6, dtype), array1(d, 7, dtype), array1(d, 8, np.bool_)
+    in_chunks(d, _sight, (block_cells, ny, nx, origin, target, wanted, fraction, cell, out))
 
 
-@kernel_entry("bool[3]", "int16[3]", "real[2]", "real[2]", "bool[1]", "real[1]", "real[1]", "bool[1]", "real_size")
+@kernel_entry("int16[3]", "int", "int", "real[2]", "real[2]", "bool[1]", "real[1]", "real[1]", "bool[1]", "real_size")
 def _sight_entry(data):  # pragma: no cover - compiled
-    """:func:`_sight_share` in the dtype whose size in bytes is argument 8."""
-    in_float_dtype(data, 8, _sight_share)
+    """:func:`_sight_share` in the dtype whose size in bytes is argument 9."""
+    in_float_dtype(data, 9, _sight_share)

@@ -370,7 +370,7 @@ class WorldMapGeometry(Geometry):
                        last: tuple[Tensor, Tensor] | None = None) -> Tensor:
         row, col = self._cell_rows_cols(pose[..., :2], self.resolution, self.shape)
         if self._cpu is not None:
-            return self._cpu.hits(self.occupancy, row, col, bins, bound, self._lead_ray(pose, bins, last))
+            return self._cpu.hits(row, col, bins, bound, self._lead_ray(pose, bins, last))
         return torch.minimum(bound, self._gathered_hits(row, col, bins))
 
     def _gathered_hits(self, row: Tensor, col: Tensor, bins: Tensor) -> Tensor:
@@ -411,8 +411,7 @@ class WorldMapGeometry(Geometry):
             return super().line_of_sight(origin, target, wanted)
         origin, target = torch.broadcast_tensors(origin, target)
         wanted = torch.ones(origin.shape[:-1], dtype=torch.bool) if wanted is None else wanted
-        return self._cpu.line_of_sight(self.occupancy, origin, target, wanted.expand(origin.shape[:-1]),
-                                       self._sight_fractions())
+        return self._cpu.line_of_sight(origin, target, wanted.expand(origin.shape[:-1]), self._sight_fractions())
 
     def free_start(self, xy: Tensor) -> Tensor:
         """Whether an episode may place a robot, target or belief at each position ``[B, ..., 2]``: in one of its

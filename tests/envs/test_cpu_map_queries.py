@@ -49,7 +49,7 @@ def test_each_walked_ray_is_the_gathered_ray():
     bins = _bins(geometry, pose)
     gathered = geometry._gathered_hits(row, col, bins)
     no_lead = torch.full((6, 400), -1)
-    walked = torch.stack([geometry._cpu.hits(geometry.occupancy, row, col, bins[..., f:f + 1],
+    walked = torch.stack([geometry._cpu.hits(row, col, bins[..., f:f + 1],
                                               torch.full((6, 400, 1), math.inf), no_lead)[..., 0]
                           for f in range(bins.shape[-1])], -1)
     assert torch.equal(walked, gathered)
