@@ -16,9 +16,9 @@ in the caches; their distance fields and bits (8.7 and 17 MB) do.
   than the nearest value found so far (the walls' distances included), which leaves the minimum over the rays and
   its first index as they were; from a free cell it jumps over every cell within its free radius. It walks first
   the ray toward the last step's closest obstacle, which is most often near this step's: the other rays then stop
-  sooner (the walk of 4,096 worlds 4.4 -> 3.1 ms, against 3.2 ms with the true closest ray first). The cells a ray
-  crosses are the same offsets from any start, and their ``|dcol|`` and ``|drow|`` never decrease, so the first
-  cell beyond a radius is a lookup in two tables per ray.
+  sooner (the walk of 4,096 worlds, 8 steps of an episode in 8 interleaved rounds: 4.72-5.46 -> 3.97-5.18 ms).
+  The cells a ray crosses are the same offsets from any start, and their ``|dcol|`` and ``|drow|`` never
+  decrease, so the first cell beyond a radius is a lookup in two tables per ray.
 * **Collision** (:func:`near_occupied`): the map cells within ``margin`` of a point are read only when neither its
   cell's free radius nor the squares around it clear them.
 * **Line of sight** (:func:`line_of_sight`): the samples of a segment are read in order to the first occupied
