@@ -11,9 +11,17 @@ A case is a preset, optionally with env overrides after a colon (``small2:belief
 256 and 1,024 particles); ``--baseline REV`` measures every case again with the code of commit ``REV`` in the
 same run (the cases that commit cannot build are left out), so a change's cost is a ratio within one run.
 
+``--rounds N`` measures every case N times, round by round (each round's cases one after another, so that they
+meet the same hour of a shared VM, where a case swings by 40 % from one minute to the next), and reports each
+case's median and range over the rounds; ``--relative-to SETTING`` adds each case's frames/s as a fraction of
+that setting's in the same round (mode, batch size and code), with its median and range: the form of a target
+such as "random maps at least half the frames/s of the fixed map".
+
     python benchmarks/env_throughput.py                     # CPU, B in {1, 16, 256, 4096}, the four settings
     python benchmarks/env_throughput.py --device cuda --batch-sizes 1 1024 16384 65536
     python benchmarks/env_throughput.py --filters --batch-sizes 1 4096 --baseline 54a9a5a
+    python benchmarks/env_throughput.py --settings obstacles1 random_obstacles --batch-sizes 4096 --modes compiled \
+        --rounds 5 --relative-to obstacles1
 """
 
 from __future__ import annotations
@@ -80,8 +88,34 @@ def measure(setting: str, batch_size: int, device: str, steps: int, warmup: int,
     }
 
 
+def summarise(rows: list[dict], relative_to: str | None = None) -> list[dict]:
+    """One row per case (setting, mode, batch size, code) over its rounds: the median frames/s and ms a step, the
+    range of frames/s, and with ``relative_to`` the frames/s as a fraction of that setting's in the same round
+    (``relative``: median; ``relative_range``)."""
+    key = ("setting", "mode", "batch_size", "code")
+    reference = {(r["round"], r["mode"], r["batch_size"], r["code"]): r["frames_per_s"] for r in rows
+                 if r["setting"] == relative_to}
+    cases: dict[tuple, list[dict]] = {}
+    for row in rows:
+        cases.setdefault(tuple(row[k] for k in key), []).append(row)
+    summary = []
+    for case, runs in cases.items():
+        rates = [r["frames_per_s"] for r in runs]
+        entry = dict(zip(key, case, strict=True), rounds=len(runs), frames_per_s=statistics.median(rates),
+                     frames_per_s_range=[min(rates), max(rates)],
+                     ms_per_step=statistics.median(r["ms_per_step"] for r in runs))
+        ratios = [r["frames_per_s"] / reference[(r["round"], *case[1:])] for r in runs
+                  if (r["round"], *case[1:]) in reference]
+        if relative_to is not None and ratios:
+            entry |= {"relative_to": relative_to, "relative": statistics.median(ratios),
+                      "relative_range": [min(ratios), max(ratios)]}
+        summary.append(entry)
+    return summary
+
+
 def markdown_table(rows: list[dict]) -> str:
-    """Frames/s per setting and batch size, eager and compiled side by side (for the README)."""
+    """Frames/s per setting and batch size (:func:`summarise`'s rows: medians over the rounds, with the range and
+    the fraction of the reference setting where there are), eager and compiled side by side (for the README)."""
     cells = {(r["setting"], r["batch_size"], _column(r)): r for r in rows}
     settings = list(dict.fromkeys(r["setting"] for r in rows))
     sizes = sorted({r["batch_size"] for r in rows})
@@ -93,9 +127,22 @@ def markdown_table(rows: list[dict]) -> str:
             entries = []
             for mode in modes:
                 row = cells.get((setting, size, mode))
-                entries.append(f"{row['frames_per_s']:,.0f} ({row['ms_per_step']:.2f})" if row else "")
+                entries.append(_cell(row) if row else "")
             lines.append(f"| {setting} | {size} | " + " | ".join(entries) + " |")
     return "\n".join(lines)
+
+
+def _cell(row: dict) -> str:
+    """``frames/s (ms a step)``, then the range over the rounds and the fraction of the reference setting."""
+    text = f"{row['frames_per_s']:,.0f} ({row['ms_per_step']:.2f})"
+    if row["rounds"] > 1:
+        low, high = row["frames_per_s_range"]
+        text += f", {low:,.0f}-{high:,.0f}"
+    if "relative" in row and row["setting"] != row["relative_to"]:
+        low, high = row["relative_range"]
+        text += f"; {row['relative']:.2f}x {row['relative_to']}" + (f" ({low:.2f}-{high:.2f})" if row["rounds"] > 1
+                                                                     else "")
+    return text
 
 
 def _column(row: dict) -> str:
@@ -124,6 +171,9 @@ def main() -> None:
                         help="eager steps, and steps through torch.compile (make_env(compile=True))")
     parser.add_argument("--filters", action="store_true", help="one case per belief filter (FILTER_CASES)")
     parser.add_argument("--baseline", default=None, help="git commit whose code measures every case again")
+    parser.add_argument("--rounds", type=int, default=1, help="times every case is measured, round by round")
+    parser.add_argument("--relative-to", default=None, metavar="SETTING",
+                        help="report each case as a fraction of this setting's frames/s in the same round")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--single", default=None, help=argparse.SUPPRESS)  # one case, JSON in and out
     args = parser.parse_args()
@@ -133,6 +183,10 @@ def main() -> None:
         return
 
     settings = list(FILTER_CASES) if args.filters else args.settings
+    if args.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {args.rounds}")
+    if args.relative_to is not None and args.relative_to not in settings:
+        parser.error(f"--relative-to {args.relative_to!r} is not one of the settings measured: {settings}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         codes = {"now": None}
@@ -144,22 +198,24 @@ def main() -> None:
             subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
             (old / "aia" / "conf").symlink_to(old / "conf")  # the old code's configs, as its install maps them
             codes[args.baseline] = {"PYTHONPATH": str(old)}
-        print(f"{'setting':<40}{'mode':<10}{'code':<10}{'B':>7}{'frames/s':>14}{'ms/step':>10}")
-        for setting in settings:
-            for mode in args.modes:
-                for batch_size in args.batch_sizes:
-                    for code, env in codes.items():  # the baseline right beside the case it compares with
-                        case = dict(setting=setting, batch_size=batch_size, device=args.device, steps=args.steps,
-                                    warmup=args.warmup, compile=mode == "compiled", repeats=args.repeats)
-                        row = run_case(case, env)
-                        if row is None:
-                            if code == "now":
-                                raise SystemExit(f"{setting} ({mode}, B={batch_size}) failed: rerun it alone")
-                            continue
-                        row |= {"mode": mode, "code": code}
-                        rows.append(row)
-                        print(f"{setting:<40}{mode:<10}{code:<10}{batch_size:>7}{row['frames_per_s']:>14,.0f}"
-                              f"{row['ms_per_step']:>10.3f}", flush=True)
+        print(f"{'setting':<40}{'mode':<10}{'code':<10}{'B':>7}{'frames/s':>14}{'ms/step':>10}{'round':>7}")
+        for round_ in range(args.rounds):
+            for setting in settings:
+                for mode in args.modes:
+                    for batch_size in args.batch_sizes:
+                        for code, env in codes.items():  # the baseline right beside the case it compares with
+                            case = dict(setting=setting, batch_size=batch_size, device=args.device,
+                                        steps=args.steps, warmup=args.warmup, compile=mode == "compiled",
+                                        repeats=args.repeats)
+                            row = run_case(case, env)
+                            if row is None:
+                                if code == "now":
+                                    raise SystemExit(f"{setting} ({mode}, B={batch_size}) failed: rerun it alone")
+                                continue
+                            row |= {"mode": mode, "code": code, "round": round_}
+                            rows.append(row)
+                            print(f"{setting:<40}{mode:<10}{code:<10}{batch_size:>7}{row['frames_per_s']:>14,.0f}"
+                                  f"{row['ms_per_step']:>10.3f}{round_ + 1:>7}", flush=True)
 
     out = args.out or Path(__file__).parent / "results" / f"env_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -170,9 +226,10 @@ def main() -> None:
         "processor": platform.processor() or platform.machine(),
         "gpu": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
     }
-    out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
+    summary = summarise(rows, args.relative_to)
+    out.write_text(json.dumps({"meta": meta, "results": rows, "summary": summary}, indent=2))
     print()
-    print(markdown_table(rows))
+    print(markdown_table(summary))
     print(f"wrote {out}")
 
 
