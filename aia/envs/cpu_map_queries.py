@@ -59,9 +59,11 @@ BLOCK = 1 << BLOCK_SHIFT
 
 class CpuMapQueries:
     """The queries of ``num_worlds`` maps of ``shape`` cells of ``resolution`` metres: their block distances
-    (:meth:`update` after the maps change) and the tables of the rays ``(ray_cols, ray_rows, ray_distances)`` (each
-    ``[num_bins, L]``, the cells of :func:`aia.envs.sensing._ray_offsets`, in order, padded with the start cell at
-    ``inf``). A query's leading dimension is the world: ``[B, ...]``, world ``b``'s map for row ``b``.
+    (:meth:`update` after maps are set from grids; generated maps get theirs as they are drawn,
+    :meth:`aia.envs.map_generator.RandomObstacles.generate`) and the tables of the rays ``(ray_cols, ray_rows,
+    ray_distances)`` (each ``[num_bins, L]``, the cells of :func:`aia.envs.sensing._ray_offsets`, in order, padded
+    with the start cell at ``inf``). A query's leading dimension is the world: ``[B, ...]``, world ``b``'s map for
+    row ``b``.
 
     ``block_distance [B, nby, nbx]`` holds each block's chessboard distance in blocks to the nearest block with an
     occupied cell, ``block_cells [B, nby, nbx]`` its occupied cells as bits (:func:`occupied_cell`), which the
