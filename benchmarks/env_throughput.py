@@ -106,7 +106,7 @@ def summarise(rows: list[dict], relative_to: str | None = None) -> list[dict]:
                      ms_per_step=statistics.median(r["ms_per_step"] for r in runs))
         ratios = [r["frames_per_s"] / reference[(r["round"], *case[1:])] for r in runs
                   if (r["round"], *case[1:]) in reference]
-        if relative_to is not None and ratios:
+        if ratios:  # none without relative_to
             entry |= {"relative_to": relative_to, "relative": statistics.median(ratios),
                       "relative_range": [min(ratios), max(ratios)]}
         summary.append(entry)

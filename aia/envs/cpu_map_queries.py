@@ -6,8 +6,8 @@ What makes them cheap is one distance field per map, over squares of ``BLOCK x B
 chessboard distance in squares to the nearest square holding an occupied cell (made for the worlds whose maps
 change, at their reset, from the maps' runs of occupied cells: :func:`block_fields`; :func:`free_radius` turns it
 into a radius of cells around any cell that holds no obstacle), and each square's occupied cells as the bits of an
-int16. The grids of 4,096 maps (134 MB) do not fit
-in the caches; their distance fields and bits (8.7 and 17 MB) do.
+int16. The grids of 4,096 maps (134 MB) do not fit in the caches; their distance fields and bits (8.7 and 17 MB)
+do.
 
 * **The closest obstacle in view** (:func:`ray_walk`): the first occupied cell along each ray in the field of
   view. Gathered whole (42 rays of up to about 70 cells at the paper's 0.05 rad spacing, 10 m range and 0.2 m
