@@ -2,8 +2,10 @@
 
 1. Populations: ``aia.training.train_population`` in the paper's regime (one world per member, one update per
    frame, batch 64, evaluation after every episode or two as the presets say) for P = 1, 5, 20, 80 members,
-   for DQN on the 1-target network (``paper_empty1``: 3 x 128) and ADFQ with Thompson sampling on the
-   3-target network (``paper_small3``: 3 x 256), eager and compiled (every ``compile.*`` switch on). The rate
+   for the learner rows of ``ROWS`` (``--algos``): DQN on the 1-target network (``dqn``: ``paper_empty1``,
+   3 x 128), ADFQ with Thompson sampling on the 3-target network (``adfq``: ``paper_small3``, 3 x 256) and DQN
+   with the conv torso over ttenv v4's 28 x 28 map image (``conv``: ``ttenv_v4``, the env drawing each member's
+   local map every step), eager and compiled (every ``compile.*`` switch on). The rate
    counts the updating frames of every member, from the loop's own phase clocks (``TrainingState.seconds``):
    per step, each phase's time in a job of ``warmup + frames`` frames minus its time in a warm-up-only job
    (compiled, after a first warm-up job that compiles what the later jobs of that size reuse), summed over
@@ -24,13 +26,13 @@
 2. The vmap alternative: one update of P members of the 3 x 128 DQN by ``torch.vmap`` over TorchRL's
    ``DQNLoss`` with the members' parameters stacked and entered with ``to_module``, against the stacked
    network inside one ``DQNLoss`` (what the loop uses), eager, P = 1 and 20.
-3. Convolutional Q-networks (``--conv 1,20``, the default): the ttenv v4 network (a 1 x 28 x 28 map image
+3. The conv network alone (``--conv 1,20``, the default): the ``conv`` row's network (a 1 x 28 x 28 map image
    through the conv torso of ``conf/train.yaml``'s ``conv_layers``, with the 1-target belief features into the
    3 x 128 DQN head), member-frames per second of the network's share of a frame in the paper's regime: one
    greedy forward on the member's world, then one update of a batch of 64 (``aia.training.optimizer.Updater``:
-   TorchRL's ``DQNLoss``, clipping, Adam, the target copy every 50 updates), on random maps and features. The
-   env emits no map observation yet, so these rows leave out the env, the replay and the evaluations of the
-   population rows. ``--conv-alternatives`` times the ways of stacking the members' conv networks: grouped
+   TorchRL's ``DQNLoss``, clipping, Adam, the target copy every 50 updates), on random maps and features,
+   without the env, the replay and the evaluations of the population rows (whose share a population also
+   shares among its members). ``--conv-alternatives`` times the ways of stacking the members' conv networks: grouped
    convolutions (``aia.modules.StackedConvQNetwork``), ``torch.vmap`` over the solo network with
    ``torch.func.stack_module_state``, and a loop over the members, for a batch of 64 per member (forward and
    backward) and for acting on 4,096 worlds split among the members (forward).
@@ -45,7 +47,7 @@ host-device synchronisation by the line that asked (``count_syncs``): a site cou
 stalls every step.
 
 ``--inner-dtypes float32,bfloat16`` adds rows with the hidden-to-hidden matmuls in bfloat16 (``inner_dtype``,
-``conf/train.yaml``), each against P = 1 of its own dtype; ``--algos adfq`` keeps one learner.
+``conf/train.yaml``), each against P = 1 of its own dtype; ``--algos adfq`` keeps one learner row.
 
 ``--repeats N`` measures every population size N times, round by round (each round's sizes one after another,
 so that they meet the same VM): each row gives the median rate and the range, and the ratio to the P = 1 run of
@@ -61,6 +63,7 @@ and after, so a row can be set beside the VM's hour and the code it measured.
     python benchmarks/population.py --members 1,5,20 --modes eager --baseline 54a9a5a
     python benchmarks/population.py --algos adfq --modes compiled --members 1,5 --inner-dtypes float32,bfloat16
     python benchmarks/population.py --algos dqn --modes compiled --members 1,20 --repeats 3 --frames 600
+    python benchmarks/population.py --algos conv --modes compiled --members 1,20 --repeats 3 --conv ""
     python benchmarks/population.py --device cuda --modes eager --members 1,20,80,320 --count-syncs 4
     python benchmarks/population.py --algos "" --conv 1,20 --repeats 5 --conv-alternatives
 """
@@ -84,6 +87,7 @@ import traceback
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 from hydra import compose, initialize_config_module
@@ -94,18 +98,36 @@ from torchrl.objectives import DQNLoss, HardUpdate
 from aia.envs import make_env
 from aia.logging.mcap_logger import git_state
 from aia.modules import StackedConvQNetwork, make_q_network
-from aia.modules.q_networks import make_qvalue_actor
+from aia.modules.q_networks import make_qvalue_actor, same_padding
 from aia.runtime.timing import sgemm_gflops, synchronize
 from aia.training import train_population
 from aia.training.components import make_loss, make_network, make_stacked_network
 from aia.training.optimizer import StackedAdam, Updater
 
-ROWS = {"dqn": ("paper_empty1", "egreedy", 8, (128, 128, 128)), "adfq": ("paper_small3", "thompson", 20,
-                                                                          (256, 256, 256))}
+
+class Row(NamedTuple):
+    """A benchmarked learner: its experiment preset, learner and exploration, its belief features' width, its
+    hidden layers and, for a conv network, the map image ``(channels, im_size, im_size)``, as the preset has them."""
+
+    experiment: str
+    algo: str
+    exploration: str
+    features: int
+    hidden: tuple[int, ...]
+    image: tuple[int, int, int] | None = None
+
+    @property
+    def network(self) -> str:
+        """The network's name in the tables: its hidden widths, ``conv+`` in front for a conv torso."""
+        return ("conv+" if self.image else "") + "x".join(map(str, self.hidden))
+
+
+ROWS = {"dqn": Row("paper_empty1", "dqn", "egreedy", 8, (128, 128, 128)),
+        "adfq": Row("paper_small3", "adfq", "thompson", 20, (256, 256, 256)),
+        "conv": Row("ttenv_v4", "dqn", "egreedy", 8, (128, 128, 128), (1, 28, 28))}
 NUM_ACTIONS, BATCH = 12, 64
-# the conv rows: ttenv v4's map image (channels, im_size) and belief features (1 target), acting worlds of the
-# alternatives' forward
-CONV_MAP, CONV_OBS, ACTING_WORLDS = (1, 28, 28), 8, 4096
+CONV = ROWS["conv"]  # the conv network's own rows (--conv) and alternatives (--conv-alternatives)
+ACTING_WORLDS = 4096  # the conv alternatives' acting forward
 # the paper presets' replay buffer and target period (a copy every 50 updates: HardUpdate copies on the 51st)
 BUFFER_SIZE, TARGET_PERIOD = 1000, 51
 LOOP_SWITCHES = ("update", "env", "policy")
@@ -123,11 +145,25 @@ def _config(*overrides: str):
         return compose(config_name="train", overrides=list(overrides))
 
 
-def _widths(algo: str) -> list[int]:
-    """The benchmarked network's layer widths: observation, hidden layers, outputs (ADFQ: a mean and a log-sd
-    per action)."""
-    _, _, obs, hidden = ROWS[algo]
-    return [obs, *hidden, 2 * NUM_ACTIONS if algo == "adfq" else NUM_ACTIONS]
+def _torso(row: Row) -> tuple[int, int]:
+    """A conv row's torso: multiply-adds per image and features out (``conf/train.yaml``'s ``conv_layers``,
+    TensorFlow's "SAME" padding); ``(0, 0)`` without a map image."""
+    if row.image is None:
+        return 0, 0
+    channels, size, _ = row.image
+    macs = 0
+    for filters, kernel, stride in _config(f"experiment={row.experiment}").conv_layers:
+        size = same_padding(size, kernel, stride)[2]
+        macs += size * size * filters * channels * kernel * kernel
+        channels = filters
+    return macs, channels * size * size
+
+
+def _widths(name: str) -> list[int]:
+    """The benchmarked heads' layer widths: input (belief features, and a conv row's torso features), hidden
+    layers, outputs (ADFQ: a mean and a log-sd per action)."""
+    row = ROWS[name]
+    return [row.features + _torso(row)[1], *row.hidden, 2 * NUM_ACTIONS if row.algo == "adfq" else NUM_ACTIONS]
 
 
 def _ms_per_call(fn: Callable[[], object], repeats: int, warmup: int, device: str = "cpu") -> float:
@@ -143,35 +179,38 @@ def _ms_per_call(fn: Callable[[], object], repeats: int, warmup: int, device: st
     return 1e3 * (time.perf_counter() - start) / repeats
 
 
-def flops_per_member_frame(algo: str) -> float:
-    """Matmul FLOPs of one member-frame: acting on one world, and one update of a batch of 64 (forward of
-    the online network and its backward, twice the forward; the target network's forward on s'). ADFQ's
-    targets come from ``aia.training.target_cache.TargetCache``: the target network on s and s' of the
-    buffer's 1,000 rows once per 51-update target period, and of each written transition (computed among 4):
-    2 x (1,000 / 51 + 4) rows a frame instead of 2 x 64."""
-    widths = _widths(algo)
-    per_sample = 2 * sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True))
-    target_rows = 2 * (BUFFER_SIZE / TARGET_PERIOD + 4) if algo == "adfq" else BATCH
+def flops_per_member_frame(name: str) -> float:
+    """Matmul FLOPs of one member-frame of row ``name``: acting on one world, and one update of a batch of 64
+    (forward of the online network and its backward, twice the forward; the target network's forward on s'),
+    a conv row's convolutions counted as products. ADFQ's targets come from
+    ``aia.training.target_cache.TargetCache``: the target network on s and s' of the buffer's 1,000 rows once per
+    51-update target period, and of each written transition (computed among 4): 2 x (1,000 / 51 + 4) rows a
+    frame instead of 2 x 64."""
+    widths = _widths(name)
+    per_sample = 2 * (_torso(ROWS[name])[0] + sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True)))
+    target_rows = 2 * (BUFFER_SIZE / TARGET_PERIOD + 4) if ROWS[name].algo == "adfq" else BATCH
     return per_sample * (1 + 3 * BATCH + target_rows)
 
 
-def member_configs(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
+def member_configs(name: str, members: int, compile: bool, warmup: int, frames: int, device: str,
                    inner_dtype: str = "float32", extra: Sequence[str] = ()) -> list:
-    """The configs of a benchmarked population's members (seeds 0 .. members - 1): the row's preset, learner and
-    exploration, no logger, every ``compile.*`` switch of the loop set to ``compile``, then ``extra`` overrides."""
-    experiment, exploration, _, _ = ROWS[algo]
-    switches = [f"compile.{name}={str(compile).lower()}" for name in LOOP_SWITCHES]
-    return [_config(f"experiment={experiment}", f"algo={algo}", f"exploration={exploration}", "logger=none",
+    """The configs of a benchmarked population's members (seeds 0 .. members - 1): row ``name``'s preset, learner
+    and exploration, no logger, every ``compile.*`` switch of the loop set to ``compile``, then ``extra``
+    overrides."""
+    row = ROWS[name]
+    switches = [f"compile.{switch}={str(compile).lower()}" for switch in LOOP_SWITCHES]
+    return [_config(f"experiment={row.experiment}", f"algo={row.algo}", f"exploration={row.exploration}",
+                    "logger=none",
                     f"device={device}", f"warmup_frames={warmup}", f"inner_dtype={inner_dtype}", *switches,
                     f"frames={frames}", f"seed={seed}", *extra) for seed in range(members)]
 
 
-def measure_population(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str,
+def measure_population(name: str, members: int, compile: bool, warmup: int, frames: int, device: str,
                        inner_dtype: str = "float32") -> dict:
     """Member-frames per second of the updating frames of a ``members``-member population, and its collection's
     time per step without updates between the steps (``collect_alone_ms``)."""
     def job(length: int, warmup_frames: int = warmup) -> tuple[float, dict]:
-        cfgs = member_configs(algo, members, compile, warmup_frames, length, device, inner_dtype)
+        cfgs = member_configs(name, members, compile, warmup_frames, length, device, inner_dtype)
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
             states = train_population(cfgs, [Path(out) / str(seed) for seed in range(members)])
@@ -191,7 +230,8 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
     # evaluations come in lumps (a rollout per eval.per_rollout points, and one at the end of every job), so
     # a difference of two jobs says little: their cost is spread over all frames of the longer job
     split["evaluate"] = 1e3 * phases.get("evaluate", 0.0) / (warmup + frames)
-    return {"kind": "population", "algo": algo, "network": "x".join(map(str, ROWS[algo][3])), "members": members,
+    return {"kind": "population", "row": name, "algo": ROWS[name].algo, "network": ROWS[name].network,
+            "members": members,
             "compiled": compile, "inner_dtype": inner_dtype, "device": device, "warmup_frames": warmup,
             "updating_frames": frames,
             "job_s": job_s, "first_update_s": phases["first_update"],
@@ -201,12 +241,12 @@ def measure_population(algo: str, members: int, compile: bool, warmup: int, fram
             "ms_per_step_by_phase": split, "collect_alone_ms": collect_alone_ms}
 
 
-def count_syncs(algo: str, members: int, compile: bool, warmup: int, frames: int, device: str) -> dict:
+def count_syncs(name: str, members: int, compile: bool, warmup: int, frames: int, device: str) -> dict:
     """The host-device synchronisations of one ``warmup + frames``-frame population job on CUDA, by the line
     that asked for each (``torch.cuda.set_sync_debug_mode("warn")``: every synchronising call warns, and the
     warning's Python stack names the TorchRL, tensordict or aia line, and the innermost aia line under it). A
     site counted about once per frame syncs every step; the others sync per episode, evaluation or log."""
-    cfgs = member_configs(algo, members, compile, warmup, warmup + frames, device)
+    cfgs = member_configs(name, members, compile, warmup, warmup + frames, device)
     sites: collections.Counter[str] = collections.Counter()
 
     def record(message, category, filename, lineno, file=None, line=None) -> None:
@@ -232,7 +272,8 @@ def count_syncs(algo: str, members: int, compile: bool, warmup: int, frames: int
         finally:
             torch.cuda.set_sync_debug_mode(0)
     state = states[0]
-    return {"kind": "syncs", "algo": algo, "members": members, "compiled": compile, "device": device,
+    return {"kind": "syncs", "row": name, "algo": ROWS[name].algo, "members": members, "compiled": compile,
+            "device": device,
             "frames": state.frames, "updates": state.updates, "episodes": state.episodes,
             "evaluations": state.evaluations, "syncs": sum(sites.values()),
             "sites": [{"site": site, "count": count} for site, count in sites.most_common()]}
@@ -249,13 +290,14 @@ def _frame_name(frame: traceback.FrameSummary) -> str:
     return f"{path}:{frame.lineno} {frame.name}"
 
 
-def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", repeats: int = 50,
+def update_matmuls_ms(name: str, members: int, inner_dtype: str = "float32", repeats: int = 50,
                       device: str = "cpu") -> float:
-    """ms of one update's batched products alone, ``members`` members (eager ``torch.bmm`` on the loop's shapes,
-    batch 64: the online network's forward, for DQN the target network's forward on s' (ADFQ's targets come
-    from its cache), and the backward's weight and input gradients; the layers between two hidden layers in
-    ``inner_dtype``): the floor under the update phase, whatever the step's other work costs."""
-    widths = _widths(algo)
+    """ms of one update's batched products alone, ``members`` members of row ``name`` (eager ``torch.bmm`` on the
+    loop's shapes, batch 64: the online network's forward, for DQN the target network's forward on s' (ADFQ's
+    targets come from its cache), and the backward's weight and input gradients; the layers between two hidden
+    layers in ``inner_dtype``; a conv row's heads, not its convolutions): the floor under the update phase,
+    whatever the step's other work costs."""
+    widths = _widths(name)
     generator = torch.Generator().manual_seed(0)
     layers = []
     for index, (fan_in, fan_out) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
@@ -264,7 +306,7 @@ def update_matmuls_ms(algo: str, members: int, inner_dtype: str = "float32", rep
         layers.append(tuple(torch.randn(shape, generator=generator).to(dtype) for shape in
                             ((members, fan_in, fan_out), (members, BATCH, fan_in), (members, BATCH, fan_out))))
     layers = [tuple(tensor.to(device) for tensor in layer) for layer in layers]
-    forwards = 2 if algo == "dqn" else 1
+    forwards = 2 if ROWS[name].algo == "dqn" else 1
 
     def products() -> None:
         for _ in range(forwards):
@@ -333,8 +375,8 @@ def _conv_batch(members: int, rows: int, seed: int = 0) -> TensorDict:
     shape = (members, rows)
 
     def state() -> dict:
-        occupied = torch.rand(*shape, *CONV_MAP, generator=generator) < 0.2
-        return {"observation": torch.randn(*shape, CONV_OBS, generator=generator),
+        occupied = torch.rand(*shape, *CONV.image, generator=generator) < 0.2
+        return {"observation": torch.randn(*shape, CONV.features, generator=generator),
                 "local_map": occupied.float() * 2 - 1}
 
     done = torch.zeros(*shape, 1, dtype=torch.bool)
@@ -347,8 +389,8 @@ def measure_conv_network(members: int, compile: bool, steps: int, device: str = 
     """Member-frames per second of the conv DQN's work per frame (a greedy forward on one world per member and one
     update of 64 transitions per member; part 3 of the module docstring), ``steps`` timed steps after 10 (the
     first update compiles when ``compile``)."""
-    cfgs = member_configs("dqn", members, compile, 0, steps, device)
-    network = make_stacked_network(cfgs, CONV_OBS, NUM_ACTIONS, CONV_MAP)
+    cfgs = member_configs("conv", members, compile, 0, steps, device)
+    network = make_stacked_network(cfgs, CONV.features, NUM_ACTIONS, CONV.image)
     loss = make_loss(cfgs, make_qvalue_actor(network, Categorical(NUM_ACTIONS, device=device)))
     optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [c.lr for c in cfgs])
     update = Updater(loss, optimizer, HardUpdate(loss, value_network_update_interval=cfgs[0].target_update_interval),
@@ -373,8 +415,8 @@ def measure_conv_network(members: int, compile: bool, steps: int, device: str = 
         step(False)
     for _ in range(steps):
         step(True)
-    return {"kind": "conv_network", "algo": "dqn", "network": "conv+" + "x".join(map(str, cfgs[0].hidden)),
-            "conv_layers": [list(layer) for layer in cfgs[0].conv_layers], "map": list(CONV_MAP),
+    return {"kind": "conv_network", "row": "conv", "algo": CONV.algo, "network": CONV.network,
+            "conv_layers": [list(layer) for layer in cfgs[0].conv_layers], "map": list(CONV.image),
             "members": members, "compiled": compile, "device": device, "steps": steps,
             "member_frames_per_s": members * steps / sum(seconds.values()),
             "ms_per_step_by_phase": {phase: 1e3 * t / steps for phase, t in seconds.items()}}
@@ -385,11 +427,11 @@ def measure_conv_alternatives(members: int, repeats: int = 20) -> dict:
     (:class:`~aia.modules.StackedConvQNetwork`), ``torch.vmap`` over the solo network with the members' parameters
     from ``torch.func.stack_module_state``, and a loop over the solo networks; forward and backward of a batch of
     64 per member, and a forward on 4,096 worlds split among the members."""
-    cfgs = member_configs("dqn", members, False, 0, 1, "cpu")
+    cfgs = member_configs("conv", members, False, 0, 1, "cpu")
     solos = []
     for cfg in cfgs:
         torch.manual_seed(cfg.seed)
-        solos.append(make_network(cfg, CONV_OBS, NUM_ACTIONS, CONV_MAP))
+        solos.append(make_network(cfg, CONV.features, NUM_ACTIONS, CONV.image))
     grouped = StackedConvQNetwork.stack(solos)
     params, buffers = torch.func.stack_module_state(solos)
     template = solos[0]
@@ -441,7 +483,10 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--members", default="1,5,20,80", help="comma-separated population sizes")
     parser.add_argument("--modes", default="eager,compiled", help="comma-separated: eager, compiled")
-    parser.add_argument("--algos", default=",".join(ROWS), help=f"comma-separated: {', '.join(ROWS)}")
+    parser.add_argument("--algos", default=",".join(ROWS),
+                        help="comma-separated learner rows: " + ", ".join(
+                            f"{name} ({row.algo} {row.network} on experiment={row.experiment})"
+                            for name, row in ROWS.items()))
     parser.add_argument("--inner-dtypes", default="float32",
                         help="comma-separated inner_dtype values to compare: float32, bfloat16")
     parser.add_argument("--warmup", type=int, default=200, help="warm-up frames of each job")
@@ -463,9 +508,9 @@ def main() -> None:
     modes = args.modes.split(",")
     if not set(modes) <= {"eager", "compiled"}:
         parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")
-    algos, dtypes = [algo for algo in args.algos.split(",") if algo], args.inner_dtypes.split(",")
+    names, dtypes = [name for name in args.algos.split(",") if name], args.inner_dtypes.split(",")
     conv_sizes = [int(p) for p in args.conv.split(",") if p]
-    if not set(algos) <= set(ROWS):
+    if not set(names) <= set(ROWS):
         parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ROWS)}")
     if not set(dtypes) <= {"float32", "bfloat16"}:
         parser.error(f"--inner-dtypes {args.inner_dtypes!r}: expected a comma-separated subset of float32,bfloat16")
@@ -481,35 +526,35 @@ def main() -> None:
             "threads": torch.get_num_threads(), "machine": platform.machine(),
             "gpu": torch.cuda.get_device_name(args.device) if on_gpu else None,
             "load_average_1_5_15min": os.getloadavg(), "sgemm_gflops_before": gflops_before,
-            "flops_per_member_frame": {algo: flops_per_member_frame(algo) for algo in ROWS}}
+            "flops_per_member_frame": {name: flops_per_member_frame(name) for name in ROWS}}
     rows = []
 
     def save() -> None:  # after every row: a run stopped half-way keeps what it measured
         out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2))
 
     if args.count_syncs:
-        for algo, mode in itertools.product(algos, modes):
-            row = count_syncs(algo, args.count_syncs, mode == "compiled", args.warmup, args.frames, args.device)
+        for name, mode in itertools.product(names, modes):
+            row = count_syncs(name, args.count_syncs, mode == "compiled", args.warmup, args.frames, args.device)
             rows.append(row)
             save()
-            print(f"host-device syncs of {algo} {mode} P={args.count_syncs}: {row['syncs']} in {row['frames']} "
+            print(f"host-device syncs of {name} {mode} P={args.count_syncs}: {row['syncs']} in {row['frames']} "
                   f"frames ({row['updates']} updates, {row['episodes']} episodes, {row['evaluations']} "
                   "evaluations)", flush=True)
             for site in row["sites"]:
                 print(f"  {site['count']:>6}  {site['site']}", flush=True)
-    print(f"{'algo':<6}{'network':<13}{'mode':<10}{'inner':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
+    print(f"{'row':<6}{'network':<18}{'mode':<10}{'inner':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
           f"{'x P=1 (range)':<16}{'with eval':>11}{'% of matmul peak':>18}{'products':>10}"
           f"  ms per step by phase")
-    for algo, mode, dtype in itertools.product(algos, modes, dtypes):
+    for name, mode, dtype in itertools.product(names, modes, dtypes):
         # rounds of every size, one after another, so that the sizes of one round meet the same VM
-        rounds = [{members: measure_population(algo, members, mode == "compiled", args.warmup, args.frames,
+        rounds = [{members: measure_population(name, members, mode == "compiled", args.warmup, args.frames,
                                                args.device, dtype) for members in sizes}
                   for _ in range(args.repeats)]
         for members in sizes:
             row = _median_run([r[members] for r in rounds], [r.get(1) for r in rounds])
-            row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(algo) / (
+            row["share_of_sgemm_peak"] = row["member_frames_per_s"] * flops_per_member_frame(name) / (
                 gflops_before * 1e9)
-            row["update_matmuls_ms"] = update_matmuls_ms(algo, members, dtype, device=args.device)
+            row["update_matmuls_ms"] = update_matmuls_ms(name, members, dtype, device=args.device)
             rows.append(row)
             save()
             rates = row["member_frames_per_s_runs"]
@@ -520,14 +565,14 @@ def main() -> None:
                 speedup += f" ({min(ratios):.1f}-{max(ratios):.1f})"
             phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in
                                sorted(row["ms_per_step_by_phase"].items(), key=lambda item: -item[1]))
-            print(f"{algo:<6}{row['network']:<13}{mode:<10}{dtype:<10}{members:>4}"
+            print(f"{name:<6}{row['network']:<18}{mode:<10}{dtype:<10}{members:>4}"
                   f"{row['member_frames_per_s']:>17,.0f}{spread:<16}"
                   f"{speedup:<16}{row['member_frames_per_s_with_evaluation']:>11,.0f}"
                   f"{100 * row['share_of_sgemm_peak']:>17.1f}%{row['update_matmuls_ms']:>10.2f}  {phases}"
                   f" (collect alone {row['collect_alone_ms']:.2f})",
                   flush=True)
     if conv_sizes:
-        print(f"\n{'algo':<6}{'network':<18}{'mode':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
+        print(f"\n{'row':<6}{'network':<18}{'mode':<10}{'P':>4}{'member-frames/s':>17}{' (range)':<16}"
               f"{'x P=1 (range)':<16}  ms per step by phase  (conv rows: the network's act and update alone)")
     for mode in modes if conv_sizes else ():
         rounds = [{members: measure_conv_network(members, mode == "compiled", args.conv_steps, args.device)
@@ -542,7 +587,7 @@ def main() -> None:
             if len(ratios) > 1:
                 speedup += f" ({min(ratios):.1f}-{max(ratios):.1f})"
             phases = ", ".join(f"{phase} {ms:.2f}" for phase, ms in row["ms_per_step_by_phase"].items())
-            print(f"{row['algo']:<6}{row['network']:<18}{mode:<10}{members:>4}{row['member_frames_per_s']:>17,.0f}"
+            print(f"{row['row']:<6}{row['network']:<18}{mode:<10}{members:>4}{row['member_frames_per_s']:>17,.0f}"
                   f"{spread:<16}{speedup:<16}  {phases}", flush=True)
     if args.conv_alternatives:
         print(f"\n{'conv stacking alternatives (DQN, eager)':<42}{'P':>4}"
