@@ -101,32 +101,21 @@ from aia.modules import StackedConvQNetwork, make_q_network
 from aia.modules.q_networks import make_qvalue_actor, same_padding
 from aia.runtime.timing import sgemm_gflops, synchronize
 from aia.training import train_population
-from aia.training.components import make_loss, make_network, make_stacked_network
+from aia.training.components import make_loss, make_network, make_stacked_network, map_shape
 from aia.training.optimizer import StackedAdam, Updater
 
 
 class Row(NamedTuple):
-    """A benchmarked learner: its experiment preset, learner and exploration, its belief features' width, its
-    hidden layers and, for a conv network, the map image ``(channels, im_size, im_size)``, as the preset has them."""
+    """A benchmarked learner: its experiment preset, learner and exploration (its network: :func:`network`)."""
 
     experiment: str
     algo: str
     exploration: str
-    features: int
-    hidden: tuple[int, ...]
-    image: tuple[int, int, int] | None = None
-
-    @property
-    def network(self) -> str:
-        """The network's name in the tables: its hidden widths, ``conv+`` in front for a conv torso."""
-        return ("conv+" if self.image else "") + "x".join(map(str, self.hidden))
 
 
-ROWS = {"dqn": Row("paper_empty1", "dqn", "egreedy", 8, (128, 128, 128)),
-        "adfq": Row("paper_small3", "adfq", "thompson", 20, (256, 256, 256)),
-        "conv": Row("ttenv_v4", "dqn", "egreedy", 8, (128, 128, 128), (1, 28, 28))}
+ROWS = {"dqn": Row("paper_empty1", "dqn", "egreedy"), "adfq": Row("paper_small3", "adfq", "thompson"),
+        "conv": Row("ttenv_v4", "dqn", "egreedy")}
 NUM_ACTIONS, BATCH = 12, 64
-CONV = ROWS["conv"]  # the conv network's own rows (--conv) and alternatives (--conv-alternatives)
 ACTING_WORLDS = 4096  # the conv alternatives' acting forward
 # the paper presets' replay buffer and target period (a copy every 50 updates: HardUpdate copies on the 51st)
 BUFFER_SIZE, TARGET_PERIOD = 1000, 51
@@ -145,25 +134,48 @@ def _config(*overrides: str):
         return compose(config_name="train", overrides=list(overrides))
 
 
-def _torso(row: Row) -> tuple[int, int]:
-    """A conv row's torso: multiply-adds per image and features out (``conf/train.yaml``'s ``conv_layers``,
-    TensorFlow's "SAME" padding); ``(0, 0)`` without a map image."""
-    if row.image is None:
-        return 0, 0
-    channels, size, _ = row.image
-    macs = 0
-    for filters, kernel, stride in _config(f"experiment={row.experiment}").conv_layers:
-        size = same_padding(size, kernel, stride)[2]
-        macs += size * size * filters * channels * kernel * kernel
-        channels = filters
-    return macs, channels * size * size
+class Network(NamedTuple):
+    """A row's network as its preset builds it: the belief features' width, the hidden layers, and with a map
+    observation the image ``(C, H, W)`` and the conv torso's ``(filters, kernel, stride)`` per layer."""
+
+    features: int
+    hidden: tuple[int, ...]
+    image: tuple[int, int, int] | None
+    conv_layers: tuple[tuple[int, ...], ...]
+
+    @property
+    def name(self) -> str:
+        """The network in the tables: its hidden widths, ``conv+`` in front for a conv torso."""
+        return ("conv+" if self.image else "") + "x".join(map(str, self.hidden))
+
+    def torso(self) -> tuple[int, int]:
+        """The conv torso's multiply-adds per image and features out (TensorFlow's "SAME" padding, as
+        :class:`~aia.modules.q_networks.ConvTorso`); ``(0, 0)`` without a map image."""
+        if self.image is None:
+            return 0, 0
+        channels, size, _ = self.image
+        macs = 0
+        for filters, kernel, stride in self.conv_layers:
+            size = same_padding(size, kernel, stride)[2]
+            macs += size * size * filters * channels * kernel * kernel
+            channels = filters
+        return macs, channels * size * size
+
+
+@functools.cache
+def network(name: str) -> Network:
+    """Row ``name``'s network, read off its preset's config and a one-world env's observation spec."""
+    cfg = member_configs(name, 1, False, 0, 1, "cpu")[0]
+    spec = make_env(cfg.env, batch_size=1).observation_spec
+    return Network(spec["observation"].shape[-1], tuple(cfg.hidden), map_shape(spec),
+                   tuple(tuple(layer) for layer in cfg.conv_layers))
 
 
 def _widths(name: str) -> list[int]:
     """The benchmarked heads' layer widths: input (belief features, and a conv row's torso features), hidden
     layers, outputs (ADFQ: a mean and a log-sd per action)."""
-    row = ROWS[name]
-    return [row.features + _torso(row)[1], *row.hidden, 2 * NUM_ACTIONS if row.algo == "adfq" else NUM_ACTIONS]
+    net = network(name)
+    return [net.features + net.torso()[1], *net.hidden, 2 * NUM_ACTIONS if ROWS[name].algo == "adfq" else NUM_ACTIONS]
 
 
 def _ms_per_call(fn: Callable[[], object], repeats: int, warmup: int, device: str = "cpu") -> float:
@@ -187,7 +199,7 @@ def flops_per_member_frame(name: str) -> float:
     51-update target period, and of each written transition (computed among 4): 2 x (1,000 / 51 + 4) rows a
     frame instead of 2 x 64."""
     widths = _widths(name)
-    per_sample = 2 * (_torso(ROWS[name])[0] + sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True)))
+    per_sample = 2 * (network(name).torso()[0] + sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True)))
     target_rows = 2 * (BUFFER_SIZE / TARGET_PERIOD + 4) if ROWS[name].algo == "adfq" else BATCH
     return per_sample * (1 + 3 * BATCH + target_rows)
 
@@ -230,7 +242,7 @@ def measure_population(name: str, members: int, compile: bool, warmup: int, fram
     # evaluations come in lumps (a rollout per eval.per_rollout points, and one at the end of every job), so
     # a difference of two jobs says little: their cost is spread over all frames of the longer job
     split["evaluate"] = 1e3 * phases.get("evaluate", 0.0) / (warmup + frames)
-    return {"kind": "population", "row": name, "algo": ROWS[name].algo, "network": ROWS[name].network,
+    return {"kind": "population", "row": name, "algo": ROWS[name].algo, "network": network(name).name,
             "members": members,
             "compiled": compile, "inner_dtype": inner_dtype, "device": device, "warmup_frames": warmup,
             "updating_frames": frames,
@@ -372,11 +384,11 @@ def _conv_batch(members: int, rows: int, seed: int = 0) -> TensorDict:
     """``[members, rows]`` random transitions with ttenv v4's observation: belief features and a map image of
     -1 (free) and 1 (occupied) cells, as ttenv scales it."""
     generator = torch.Generator().manual_seed(seed)
-    shape = (members, rows)
+    shape, conv = (members, rows), network("conv")
 
     def state() -> dict:
-        occupied = torch.rand(*shape, *CONV.image, generator=generator) < 0.2
-        return {"observation": torch.randn(*shape, CONV.features, generator=generator),
+        occupied = torch.rand(*shape, *conv.image, generator=generator) < 0.2
+        return {"observation": torch.randn(*shape, conv.features, generator=generator),
                 "local_map": occupied.float() * 2 - 1}
 
     done = torch.zeros(*shape, 1, dtype=torch.bool)
@@ -390,8 +402,9 @@ def measure_conv_network(members: int, compile: bool, steps: int, device: str = 
     update of 64 transitions per member; part 3 of the module docstring), ``steps`` timed steps after 10 (the
     first update compiles when ``compile``)."""
     cfgs = member_configs("conv", members, compile, 0, steps, device)
-    network = make_stacked_network(cfgs, CONV.features, NUM_ACTIONS, CONV.image)
-    loss = make_loss(cfgs, make_qvalue_actor(network, Categorical(NUM_ACTIONS, device=device)))
+    conv = network("conv")
+    stacked = make_stacked_network(cfgs, conv.features, NUM_ACTIONS, conv.image)
+    loss = make_loss(cfgs, make_qvalue_actor(stacked, Categorical(NUM_ACTIONS, device=device)))
     optimizer = StackedAdam(list(loss.value_network_params.values(True, True)), [c.lr for c in cfgs])
     update = Updater(loss, optimizer, HardUpdate(loss, value_network_update_interval=cfgs[0].target_update_interval),
                      cfgs[0].grad_clip, compile=compile)
@@ -402,7 +415,7 @@ def measure_conv_network(members: int, compile: bool, steps: int, device: str = 
     def step(timed: bool) -> None:
         start = time.perf_counter()
         with torch.no_grad():
-            network(acting["observation"], acting["local_map"]).argmax(-1)
+            stacked(acting["observation"], acting["local_map"]).argmax(-1)
         synchronize(device)
         middle = time.perf_counter()
         update(batch.clone())
@@ -415,8 +428,8 @@ def measure_conv_network(members: int, compile: bool, steps: int, device: str = 
         step(False)
     for _ in range(steps):
         step(True)
-    return {"kind": "conv_network", "row": "conv", "algo": CONV.algo, "network": CONV.network,
-            "conv_layers": [list(layer) for layer in cfgs[0].conv_layers], "map": list(CONV.image),
+    return {"kind": "conv_network", "row": "conv", "algo": ROWS["conv"].algo, "network": conv.name,
+            "conv_layers": [list(layer) for layer in conv.conv_layers], "map": list(conv.image),
             "members": members, "compiled": compile, "device": device, "steps": steps,
             "member_frames_per_s": members * steps / sum(seconds.values()),
             "ms_per_step_by_phase": {phase: 1e3 * t / steps for phase, t in seconds.items()}}
@@ -427,11 +440,11 @@ def measure_conv_alternatives(members: int, repeats: int = 20) -> dict:
     (:class:`~aia.modules.StackedConvQNetwork`), ``torch.vmap`` over the solo network with the members' parameters
     from ``torch.func.stack_module_state``, and a loop over the solo networks; forward and backward of a batch of
     64 per member, and a forward on 4,096 worlds split among the members."""
-    cfgs = member_configs("conv", members, False, 0, 1, "cpu")
+    cfgs, conv = member_configs("conv", members, False, 0, 1, "cpu"), network("conv")
     solos = []
     for cfg in cfgs:
         torch.manual_seed(cfg.seed)
-        solos.append(make_network(cfg, CONV.features, NUM_ACTIONS, CONV.image))
+        solos.append(make_network(cfg, conv.features, NUM_ACTIONS, conv.image))
     grouped = StackedConvQNetwork.stack(solos)
     params, buffers = torch.func.stack_module_state(solos)
     template = solos[0]
@@ -485,7 +498,7 @@ def main() -> None:
     parser.add_argument("--modes", default="eager,compiled", help="comma-separated: eager, compiled")
     parser.add_argument("--algos", default=",".join(ROWS),
                         help="comma-separated learner rows: " + ", ".join(
-                            f"{name} ({row.algo} {row.network} on experiment={row.experiment})"
+                            f"{name} ({row.algo} on experiment={row.experiment})"
                             for name, row in ROWS.items()))
     parser.add_argument("--inner-dtypes", default="float32",
                         help="comma-separated inner_dtype values to compare: float32, bfloat16")
