@@ -17,7 +17,7 @@
 #   DEVICE     torch device [cuda]
 #   WHEELS     a folder of wheels to install (with aia from this checkout) into $OUT/site first []
 #   EAGER_P / COMPILED_P   population sizes of the eager and compiled rows [1,20,80,320 / 1,20,320]
-#   ALGOS      learners of the rows [dqn,adfq]
+#   ALGOS      learner rows of benchmarks/population.py [dqn,adfq]; conv adds the ttenv_v4 conv learner
 #   STEPS      the steps to run, comma-separated [profile,eager,compiled,quickstart,sweep]; or envs
 #   PROFILE_ALGO PROFILE_P   the profiled population [dqn, 80]
 #   PROFILE_S EAGER_S COMPILED_S QUICKSTART_S SWEEP_S ENVS_S   each step's limit in seconds [150 240 420 60 60 540]; a
