@@ -40,6 +40,7 @@ from pathlib import Path
 import torch
 
 from aia.envs import make_env
+from aia.envs.factory import available_settings
 from aia.runtime.timing import synchronize
 
 SETTINGS = ("empty1", "obstacles1", "small2", "small3")
@@ -150,12 +151,14 @@ def _column(row: dict) -> str:
     return row["mode"] if row.get("code", "now") == "now" else f"{row['mode']} @ {row['code']}"
 
 
-def run_case(case: dict, env: dict | None = None) -> dict | None:
-    """One case in a fresh process (with ``env`` added to its environment); None when it fails."""
+def run_case(case: dict, env: dict | None = None) -> dict | str:
+    """One case in a fresh process (with ``env`` added to its environment): its row, or the last line the process
+    wrote to stderr when it fails (an unknown setting: the allowed ones)."""
     done = subprocess.run([sys.executable, str(HERE / "env_throughput.py"), "--single", json.dumps(case)],
                           capture_output=True, text=True, env=os.environ | (env or {}), cwd=env and env["PYTHONPATH"])
     if done.returncode != 0:
-        return None
+        lines = done.stderr.strip().splitlines()
+        return lines[-1] if lines else f"exit status {done.returncode}"
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
@@ -183,6 +186,9 @@ def main() -> None:
         return
 
     settings = list(FILTER_CASES) if args.filters else args.settings
+    unknown = [setting for setting in settings if not args.filters and setting not in available_settings()]
+    if unknown:
+        parser.error(f"--settings {unknown[0]!r}: expected env settings among {', '.join(available_settings())}")
     if args.rounds < 1:
         parser.error(f"--rounds must be at least 1, got {args.rounds}")
     if args.relative_to is not None and args.relative_to not in settings:
@@ -208,9 +214,11 @@ def main() -> None:
                                         steps=args.steps, warmup=args.warmup, compile=mode == "compiled",
                                         repeats=args.repeats)
                             row = run_case(case, env)
-                            if row is None:
+                            if isinstance(row, str):
+                                failure = f"{setting} ({mode}, B={batch_size}, {code}) failed: {row}"
                                 if code == "now":
-                                    raise SystemExit(f"{setting} ({mode}, B={batch_size}) failed: rerun it alone")
+                                    raise SystemExit(f"env_throughput: {failure}")
+                                print(f"{failure}; measured on the working tree only", flush=True)
                                 continue
                             row |= {"mode": mode, "code": code, "round": round_}
                             rows.append(row)
