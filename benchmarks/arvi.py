@@ -40,6 +40,7 @@ import torch
 from torchrl.envs import StepCounter
 
 from aia.envs import make_env
+from aia.envs.factory import available_settings
 from aia.evaluation import episode_scores, run_episodes
 from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy
 from aia.policies import RandomPolicy
@@ -199,6 +200,10 @@ def main() -> None:
     parser.add_argument("--baseline-commit", default=BASELINE_COMMIT, help="git commit of the planner to compare to")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
+    for flag, names in (("--settings", args.settings), ("--quality-setting", [args.quality_setting])):
+        unknown = [name for name in names if name not in available_settings()]
+        if unknown:
+            parser.error(f"{flag} {unknown[0]!r}: expected env settings among {', '.join(available_settings())}")
     torch.set_num_threads(args.threads)
 
     throughput, profile = [], ""
