@@ -189,8 +189,10 @@ def main() -> None:
     unknown = [setting for setting in settings if not args.filters and setting not in available_settings()]
     if unknown:
         parser.error(f"--settings {unknown[0]!r}: expected env settings among {', '.join(available_settings())}")
-    if args.rounds < 1:
-        parser.error(f"--rounds must be at least 1, got {args.rounds}")
+    for flag, values in (("--batch-sizes", args.batch_sizes), ("--steps", [args.steps]), ("--repeats", [args.repeats]),
+                         ("--rounds", [args.rounds])):
+        if min(values) < 1:
+            parser.error(f"{flag} {min(values)}: expected integers >= 1")
     if args.relative_to is not None and args.relative_to not in settings:
         parser.error(f"--relative-to {args.relative_to!r} is not one of the settings measured: {settings}")
     rows = []

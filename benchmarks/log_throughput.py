@@ -26,13 +26,13 @@ import time
 from pathlib import Path
 
 import torch
-from aia.train import train
 from hydra import compose, initialize_config_module
 from mcap.writer import Writer
 
 from aia.envs import make_env
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.logging.mcap_logger import MCAPRun
+from aia.training import train
 
 
 def scalars_per_second(messages: int, repeats: int) -> dict:

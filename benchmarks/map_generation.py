@@ -78,6 +78,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--memory-only", action="store_true", help=argparse.SUPPRESS)  # the fresh process
     args = parser.parse_args()
+    for flag, value in (("--batch-size", args.batch_size), ("--repeats", args.repeats), ("--steps", args.steps)):
+        if value < 1:
+            parser.error(f"{flag} {value}: expected an integer >= 1")
     if args.memory_only:
         print(peak_memory(args.batch_size, args.device, args.steps, args.compile))
         return

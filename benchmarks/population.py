@@ -517,12 +517,24 @@ def main() -> None:
                         help="on CUDA: first count the host-device syncs of a P-member population's job, by site")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
-    sizes = [int(p) for p in args.members.split(",")]
+
+    def sizes_of(flag: str, text: str) -> list[int]:  # "1,20" -> [1, 20]; "" -> []
+        try:
+            sizes = [int(p) for p in text.split(",") if p]
+        except ValueError:
+            sizes = [0]
+        if any(size < 1 for size in sizes):
+            parser.error(f"{flag} {text!r}: expected comma-separated population sizes >= 1")
+        return sizes
+
+    sizes, conv_sizes = sizes_of("--members", args.members), sizes_of("--conv", args.conv)
+    for flag, value in (("--repeats", args.repeats), ("--frames", args.frames), ("--conv-steps", args.conv_steps)):
+        if value < 1:
+            parser.error(f"{flag} {value}: expected an integer >= 1")
     modes = args.modes.split(",")
     if not set(modes) <= {"eager", "compiled"}:
         parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")
     names, dtypes = [name for name in args.algos.split(",") if name], args.inner_dtypes.split(",")
-    conv_sizes = [int(p) for p in args.conv.split(",") if p]
     if not set(names) <= set(ROWS):
         parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ROWS)}")
     if not set(dtypes) <= {"float32", "bfloat16"}:

@@ -156,7 +156,8 @@ def calibrate() -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--loop-frames", type=int, default=2000, help="frames of a loop job (500 of them warm-up)")
+    parser.add_argument("--loop-frames", type=int, default=2000,
+                        help="frames of a loop job (conf/train.yaml's warmup_frames of them warm-up)")
     parser.add_argument("--repeats", type=int, default=3, help="loop jobs per variant (median)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--parts", default="updates,loop", help="comma-separated: updates, loop")
@@ -168,6 +169,12 @@ def main() -> None:
     algos = args.algos.split(",")
     if not algos or not set(algos) <= set(ALGOS):
         parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ALGOS)}")
+    if args.repeats < 1:
+        parser.error(f"--repeats {args.repeats}: expected an integer >= 1")
+    warmup = _config().warmup_frames
+    if args.loop_frames <= warmup:
+        parser.error(f"--loop-frames {args.loop_frames}: expected more than the {warmup} warm-up frames "
+                     "(conf/train.yaml's warmup_frames)")
 
     calibration_before = calibrate()
     rows = []

@@ -1,0 +1,62 @@
+"""The scripts of benchmarks/: each imports and prints its ``--help`` (a stale import once left
+``log_throughput.py`` unrunnable unnoticed), bad input is refused in one line with exit status 2 before any
+measuring, and the population benchmark's model of a row's network is the network its preset builds."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def _script(name: str, monkeypatch: pytest.MonkeyPatch) -> ModuleType:
+    """``benchmarks/<name>.py`` as a module, its siblings importable as when it runs as a script."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    return importlib.import_module(name)
+
+
+def _main(module: ModuleType, args: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
+    """The exit status of ``module.main()`` run with ``args`` (argparse exits on ``--help`` and on errors)."""
+    monkeypatch.setattr(sys, "argv", [f"{module.__name__}.py", *args])
+    with pytest.raises(SystemExit) as exit_:
+        module.main()
+    return exit_.value.code
+
+
+@pytest.mark.parametrize("name", sorted(path.stem for path in BENCHMARKS.glob("*.py")))
+def test_a_benchmark_imports_and_prints_its_help(name, monkeypatch, capsys):
+    assert _main(_script(name, monkeypatch), ["--help"], monkeypatch) == 0
+    assert capsys.readouterr().out.startswith(f"usage: {name}.py")
+
+
+@pytest.mark.parametrize("name, args, said", [
+    ("env_throughput", ["--settings", "obstacles4"], ["--settings 'obstacles4'", "obstacles1, obstacles1_2019"]),
+    ("env_throughput", ["--batch-sizes", "16", "0"], ["--batch-sizes 0: expected integers >= 1"]),
+    ("map_generation", ["--batch-size", "0"], ["--batch-size 0: expected an integer >= 1"]),
+    ("arvi", ["--quality-setting", "bar"], ["--quality-setting 'bar'", "empty1"]),
+    ("population", ["--algos", "dqn,foo"], ["--algos 'dqn,foo'", "dqn,adfq,conv"]),
+    ("population", ["--members", "1,x"], ["--members '1,x': expected comma-separated population sizes >= 1"]),
+    ("train_throughput", ["--loop-frames", "100"], ["--loop-frames 100: expected more than the 500 warm-up"]),
+])
+def test_bad_input_is_refused_in_one_line(name, args, said, monkeypatch, capsys):
+    assert _main(_script(name, monkeypatch), args, monkeypatch) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last.startswith(f"{name}.py: error: ") and all(part in last for part in said), last
+
+
+def test_the_population_rows_model_the_network_their_presets_build(monkeypatch):
+    population = _script("population", monkeypatch)
+    conv = population.network("conv")  # ttenv_v4: 8 belief features and the 28 x 28 local map, 3 x 128 heads
+    assert conv == population.Network(8, (128, 128, 128), (1, 28, 28), ((4, 8, 4), (8, 4, 2)))
+    # "SAME" padding: 28 -> 7 x 7 x 4 (8 x 8 kernels over 1 channel), -> 4 x 4 x 8 (4 x 4 kernels over 4)
+    torso_macs = 7 * 7 * 4 * 8 * 8 + 4 * 4 * 8 * 4 * 4 * 4
+    assert conv.torso() == (torso_macs, 128) and conv.name == "conv+128x128x128"
+    head_macs = 136 * 128 + 2 * 128 * 128 + 128 * 12
+    assert population.flops_per_member_frame("conv") == 2 * (torso_macs + head_macs) * (1 + 3 * 64 + 64)
+    dqn = population.network("dqn")  # paper_empty1: the paper's 6N + 2 features, no map
+    assert dqn == population.Network(8, (128, 128, 128), None, ((4, 8, 4), (8, 4, 2))) and dqn.torso() == (0, 0)
