@@ -11,8 +11,8 @@ standard errors come from the pooled rate). Episodes where ttenv raised are left
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +63,13 @@ def table(t: dict, a: dict) -> str:
 
 
 def main() -> None:
-    runs = [json.loads(Path(path).read_text()) for path in sys.argv[1:]]
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("records", nargs="+", type=Path, help="run_ttenv.py's and run_aia.py's JSON records")
+    records = parser.parse_args().records
+    missing = [path for path in records if not path.is_file()]
+    if missing:
+        parser.error(f"no record at {str(missing[0])!r}: expected the JSON files run_ttenv.py and run_aia.py write")
+    runs = [json.loads(path.read_text()) for path in records]
     key = lambda r: (r["version"], r["policy"], MAPS.get(r["map"], r["map"]))  # noqa: E731
     ttenv, aia = {}, {}
     for r in runs:  # runs of the same side and key (other seeds) pool their episodes

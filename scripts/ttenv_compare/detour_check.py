@@ -12,6 +12,7 @@ out-of-bounds cell centre along rays 0.05 rad apart, aia's the exact margin-shru
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -86,5 +87,10 @@ def aia_side(path: str) -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("side", choices=("ttenv", "aia"), help="ttenv: write the states and ttenv's results; "
+                        "aia: recompute them and print the differences")
+    parser.add_argument("path", help="the JSON file of the states and ttenv's results")
+    args = parser.parse_args()
     sys.path.insert(0, __file__.rsplit("/", 1)[0])
-    {"ttenv": ttenv_side, "aia": aia_side}[sys.argv[1]](sys.argv[2])
+    {"ttenv": ttenv_side, "aia": aia_side}[args.side](args.path)
