@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +70,14 @@ def main() -> None:
     missing = [path for path in records if not path.is_file()]
     if missing:
         parser.error(f"no record at {str(missing[0])!r}: expected the JSON files run_ttenv.py and run_aia.py write")
-    runs = [json.loads(path.read_text()) for path in records]
+    runs = []
+    for path in records:  # detour_check.py's states may sit in the same folder: not a run record
+        record = json.loads(path.read_text())
+        if isinstance(record, dict) and "side" in record:
+            runs.append(record)
+        else:
+            print(f"compare.py: {path} is not a run record (run_ttenv.py's or run_aia.py's); left out",
+                  file=sys.stderr)
     key = lambda r: (r["version"], r["policy"], MAPS.get(r["map"], r["map"]))  # noqa: E731
     ttenv, aia = {}, {}
     for r in runs:  # runs of the same side and key (other seeds) pool their episodes
