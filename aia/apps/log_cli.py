@@ -316,13 +316,17 @@ def _with_metric(runs: Sequence[RunLog], metric: str) -> list[RunLog]:
 
 
 def check_group_keys(runs: Sequence[RunLog], keys: Sequence[str]) -> None:
-    """Every ``--group-by`` key is a config key of at least one run; else a ValueError names it and the
-    keys the runs have."""
+    """Every ``--group-by`` key is a config key of at least one run; else a ValueError names it, the keys whose
+    values differ among the runs (what one would group by) and every key the runs have."""
     for key in keys:
         if all(run.config_value(key) is None for run in runs):
             groups = {k.rsplit(".name", 1)[0] for run in runs for k in flatten(run.config()) if k.endswith(".name")}
             available = sorted(groups | {k for run in runs for k in flatten(run.config())})
-            raise ValueError(f"--group-by {key!r}: no run has this config key; available: {', '.join(available)}")
+            differing = [k for k in available if len({repr(run.config_value(k)) for run in runs}) > 1]
+            # a group that differs (algo) stands for its entries (algo.name, algo.noise, ...)
+            differing = [k for k in differing if not any(k.startswith(f"{g}.") for g in groups & set(differing))]
+            raise ValueError(f"--group-by {key!r}: no run has this config key; the {len(runs)} runs differ in: "
+                             f"{', '.join(differing) or 'no key'}; every key: {', '.join(available)}")
 
 
 class OneLineParser(argparse.ArgumentParser):

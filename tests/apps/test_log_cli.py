@@ -300,7 +300,8 @@ def test_stats_refuses_a_bad_group_key_too_few_runs_and_bad_options_in_one_line(
     _stats_runs(tmp_path)
     runs = str(tmp_path / "m")
     for arguments, message in (
-            (["--group-by", "algoo"], "--group-by 'algoo': no run has this config key; available: algo, algo.name"),
+            (["--group-by", "algoo"], "--group-by 'algoo': no run has this config key; the 10 runs differ in: "
+                                      "algo, seed; every key: algo, algo.name"),
             (["--group-by", "seed"], "'seed=0' has 2 runs: --statistic iqm needs at least 4 (iqm needs 4, mean "
                                      "needs 2)"),
             (["--baseline", str(tmp_path / "arvi/0")], "'baseline' has 1 run: --statistic iqm needs at least 4"),
