@@ -325,8 +325,10 @@ def check_group_keys(runs: Sequence[RunLog], keys: Sequence[str]) -> None:
             differing = [k for k in available if len({repr(run.config_value(k)) for run in runs}) > 1]
             # a group that differs (algo) stands for its entries (algo.name, algo.noise, ...)
             differing = [k for k in differing if not any(k.startswith(f"{g}.") for g in groups & set(differing))]
-            raise ValueError(f"--group-by {key!r}: no run has this config key; the {len(runs)} runs differ in: "
-                             f"{', '.join(differing) or 'no key'}; every key: {', '.join(available)}")
+            keys = f"every key: {', '.join(available)}"
+            if len(runs) > 1:
+                keys = f"the {len(runs)} runs differ in: {', '.join(differing) or 'no key'}; {keys}"
+            raise ValueError(f"--group-by {key!r}: no run has this config key; {keys}")
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -192,7 +192,7 @@ def test_plot_refuses_a_group_by_key_that_no_run_has(tmp_path, capsys):
     assert main(["plot", str(tmp_path / "m"), "--group-by", "algoo", "--out", str(tmp_path / "c.png")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--group-by 'algoo'" in err
-    assert "available: algo, algo.name, env.map, env.max_steps, seed" in err
+    assert "no run has this config key; every key: algo, algo.name, env.map, env.max_steps, seed\n" in err
     assert not (tmp_path / "c.png").exists()
 
 
