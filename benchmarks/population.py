@@ -212,9 +212,8 @@ def member_configs(name: str, members: int, compile: bool, warmup: int, frames: 
     row = ROWS[name]
     switches = [f"compile.{switch}={str(compile).lower()}" for switch in LOOP_SWITCHES]
     return [_config(f"experiment={row.experiment}", f"algo={row.algo}", f"exploration={row.exploration}",
-                    "logger=none",
-                    f"device={device}", f"warmup_frames={warmup}", f"inner_dtype={inner_dtype}", *switches,
-                    f"frames={frames}", f"seed={seed}", *extra) for seed in range(members)]
+                    "logger=none", f"device={device}", f"warmup_frames={warmup}", f"inner_dtype={inner_dtype}",
+                    *switches, f"frames={frames}", f"seed={seed}", *extra) for seed in range(members)]
 
 
 def measure_population(name: str, members: int, compile: bool, warmup: int, frames: int, device: str,
@@ -243,9 +242,8 @@ def measure_population(name: str, members: int, compile: bool, warmup: int, fram
     # a difference of two jobs says little: their cost is spread over all frames of the longer job
     split["evaluate"] = 1e3 * phases.get("evaluate", 0.0) / (warmup + frames)
     return {"kind": "population", "row": name, "algo": ROWS[name].algo, "network": network(name).name,
-            "members": members,
-            "compiled": compile, "inner_dtype": inner_dtype, "device": device, "warmup_frames": warmup,
-            "updating_frames": frames,
+            "members": members, "compiled": compile, "inner_dtype": inner_dtype, "device": device,
+            "warmup_frames": warmup, "updating_frames": frames,
             "job_s": job_s, "first_update_s": phases["first_update"],
             "member_frames_per_s": 1e3 * members / training_ms,
             "member_frames_per_s_with_evaluation": 1e3 * members / (training_ms + split["evaluate"]),
@@ -285,8 +283,7 @@ def count_syncs(name: str, members: int, compile: bool, warmup: int, frames: int
             torch.cuda.set_sync_debug_mode(0)
     state = states[0]
     return {"kind": "syncs", "row": name, "algo": ROWS[name].algo, "members": members, "compiled": compile,
-            "device": device,
-            "frames": state.frames, "updates": state.updates, "episodes": state.episodes,
+            "device": device, "frames": state.frames, "updates": state.updates, "episodes": state.episodes,
             "evaluations": state.evaluations, "syncs": sum(sites.values()),
             "sites": [{"site": site, "count": count} for site, count in sites.most_common()]}
 
