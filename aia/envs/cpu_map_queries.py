@@ -201,17 +201,23 @@ def _(block_cells, ny, nx, origin, target, wanted, fraction, cell):
 @numba.njit(cache=True, nogil=True)
 def _block_distances(occupied, worlds, out, cells, start, stop):  # pragma: no cover - compiled
     """For each world ``w`` in ``worlds[start:stop]``: :func:`block_fields` of the runs of ``occupied[w]``."""
-    ny, nx = occupied.shape[1], occupied.shape[2]
-    runs = np.empty((ny * ((nx + 1) // 2), 3), dtype=np.int64)
+    runs = runs_scratch(occupied.shape[1], occupied.shape[2])
     far, bits = block_scratch(out.shape[1], out.shape[2])
     for w in worlds[start:stop]:
         block_fields(runs[:grid_runs(occupied[w], runs)], out[w], cells[w], far, bits)
 
 
 @numba.njit(cache=True, nogil=True)
+def runs_scratch(ny, nx):  # pragma: no cover - compiled
+    """The ``runs`` array :func:`grid_runs` fills for grids of ``ny x nx`` cells: a row holds at most
+    ``ceil(nx / 2)`` runs."""
+    return np.empty((ny * ((nx + 1) // 2), 3), dtype=np.int64)
+
+
+@numba.njit(cache=True, nogil=True)
 def grid_runs(grid, runs):  # pragma: no cover - compiled
     """Write the occupied runs of ``grid [ny, nx]`` (row, first and last column of each, row by row, left to right)
-    into ``runs`` (at least ``ny * ceil(nx / 2)`` rows) and return their number."""
+    into ``runs`` (:func:`runs_scratch`) and return their number."""
     ny, nx = grid.shape
     n = 0
     for r in range(ny):

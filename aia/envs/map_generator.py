@@ -40,7 +40,7 @@ from torch import Tensor
 
 from aia import rng
 from aia.config.errors import ConfigError
-from aia.envs.cpu_map_queries import block_fields, block_scratch, grid_runs
+from aia.envs.cpu_map_queries import block_fields, block_scratch, grid_runs, runs_scratch
 from aia.envs.maps import RANDOM_SHAPES
 from aia.runtime.cpu_threads import (
     array1,
@@ -174,7 +174,7 @@ def _layouts(u, worlds, shapes, count_lo, count_hi, length_lo, length_hi, width_
 @numba.njit(cache=True)
 def _start_cells_all(occupancy, half_widths, wall_cells, starts, row_starts):  # pragma: no cover - compiled
     ny, nx = occupancy.shape[1:]
-    runs = np.empty((ny * ((nx + 1) // 2), 3), dtype=np.int64)
+    runs = runs_scratch(ny, nx)
     scratch = _start_scratch(ny, nx)
     for i in range(occupancy.shape[0]):
         _start_cells(runs[:grid_runs(occupancy[i], runs)], half_widths, wall_cells, starts[i], row_starts[i], scratch)
