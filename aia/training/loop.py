@@ -164,6 +164,14 @@ def _loop(population: Population, run: _Run, stop: StopOnSignals | None) -> None
     # Python's full collections walk every object, and torch (and compiling) leave about half a million of them:
     # one took 0.3 s in a 2,000-frame job. Objects made before the loop stay out of the collections until it ends.
     gc.freeze()
+
+    def evaluate() -> None:
+        """Play the pending evaluations; the bar shows the last score wherever one was played."""
+        with timer("evaluate"):
+            played = run.evaluate()
+        if played:
+            bar.set_postfix(**run.status(policy))
+
     try:
         while True:
             with timer("collect"):
@@ -186,9 +194,7 @@ def _loop(population: Population, run: _Run, stop: StopOnSignals | None) -> None
                 run.end_episodes(running_score, eval_every)
                 running_score.zero_()
             if evaluator.full:
-                with timer("evaluate"):
-                    run.evaluate()
-                bar.set_postfix(**run.status(policy))
+                evaluate()
 
             if shared.frames >= warmup_frames:
                 updates_owed += updates_per_frame * W
@@ -215,13 +221,11 @@ def _loop(population: Population, run: _Run, stop: StopOnSignals | None) -> None
             if episode_step == 0 and (checkpoint_due or stopping):
                 if stopping:
                     break  # then as at the end of the budget: pending evaluations, checkpoints
-                with timer("evaluate"):
-                    run.evaluate()  # a checkpoint keeps no pending evaluation
+                evaluate()  # a checkpoint keeps no pending evaluation
                 with timer("checkpoint"):
                     run.save(episode_step)
                 checkpoint_due, last_checkpoint = False, time.monotonic()
-        with timer("evaluate"):
-            run.evaluate()
+        evaluate()
     finally:
         gc.unfreeze()
         bar.close()
@@ -284,8 +288,9 @@ class _Run:
             if shared.episodes % eval_every == 0:
                 self.population.evaluator.add(shared.episodes, shared.frames)
 
-    def evaluate(self) -> None:
-        """Play the pending evaluations; log each member's score mean and std and belief error at its frame."""
+    def evaluate(self) -> bool:
+        """Play the pending evaluations; log each member's score mean and std and belief error at its frame.
+        Whether any was pending."""
         results = self.population.evaluator.flush()
         for point, summaries in results:
             self.shared.evaluations += 1
@@ -297,6 +302,7 @@ class _Run:
             for logger in self.loggers:
                 if logger:
                     logger.flush()  # a run killed later keeps every evaluation played so far
+        return bool(results)
 
     def log_training(self, losses: torch.Tensor, policy: PopulationQPolicy) -> None:
         """Each member's loss (and epsilon) at this frame."""

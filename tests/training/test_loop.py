@@ -9,7 +9,7 @@ import torch
 from hydra import compose, initialize_config_module
 
 from aia.logging import read_run
-from aia.training import make_actor, train, train_population
+from aia.training import make_actor, progress, train, train_population
 
 
 def _config(*overrides: str):
@@ -47,6 +47,15 @@ def test_collects_from_several_worlds_per_batch(tmp_path):
     state = train(cfg, tmp_path)
     # 4 worlds x 100 steps: two complete 40-step episodes each; one update per batch of 4 from frame 100 on
     assert state.frames == 400 and state.episodes == 8 and state.updates == 76
+
+
+def test_the_bar_ends_showing_the_last_evaluation(tmp_path):
+    # the evaluations of 3 and 6 episodes are pending until the run's end: only the final one plays them
+    sent: list[dict] = []
+    with progress.forwarding(sent.append):
+        state = train(_config("frames=300", "eval.every_episodes=3", *SMALL), tmp_path)
+    assert len(state.eval_scores) == 2
+    assert sent[-1]["closed"] and sent[-1]["postfix"].startswith(f"score={state.eval_scores[-1]:.0f},")
 
 
 def test_resume_continues_the_counters(tmp_path):
