@@ -1,16 +1,18 @@
 """Validation of the apps' composed configs: every value, once, before a run starts.
 
 Hydra has already refused unknown keys and values of the wrong type while composing (the schemas of
-:mod:`aia.config.schemas`). ``validate_train_config``, ``validate_eval_config`` and ``validate_rollout_config``
-raise :class:`~aia.config.errors.ConfigError` (key, value, what is allowed) for the first bad value: each field's
-declared check (:func:`check_settings`: ranges, choices, devices this machine has), the cross-field rules
-(``batch_size <= buffer_size``, Thompson sampling needs ADFQ), and the env setting with its map
-(:func:`aia.envs.factory.to_tracking_config`).
+:mod:`aia.config.schemas`), but not a key added with ``+`` (``+lr2=1`` composes, and a run would ignore it):
+:func:`check_known_keys` refuses that first, naming the keys allowed where it stands. ``validate_train_config``,
+``validate_eval_config`` and ``validate_rollout_config`` raise :class:`~aia.config.errors.ConfigError` (key,
+value, what is allowed) for the first bad value: each field's declared check (:func:`check_settings`: ranges,
+choices, devices this machine has), the cross-field rules (``batch_size <= buffer_size``, Thompson sampling
+needs ADFQ), and the env setting with its map (:func:`aia.envs.factory.to_tracking_config`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import typing
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,8 +23,12 @@ from omegaconf import DictConfig, OmegaConf
 from aia.config.checks import check_choice, require
 from aia.config.errors import ConfigError, one_line
 from aia.config.schemas import EvalConfig, RolloutConfig, TrainConfig
+from aia.envs.config import TrackingConfig
 from aia.envs.factory import to_tracking_config
-from aia.planners import to_arvi_config
+from aia.planners import ARVIConfig, to_arvi_config
+
+# The apps' fields typed Any that hold a sub-config with a schema of its own.
+SUB_SCHEMAS: dict[str, type] = {"env": TrackingConfig, "planner": ARVIConfig}
 
 
 def _value(node: DictConfig, name: str, key: str) -> Any:
@@ -49,8 +55,80 @@ def check_settings(cfg: DictConfig, schema: type, prefix: str = "") -> None:
             item.metadata["check"](key, _value(cfg, item.name, key))
 
 
+def _fields(schema: type | dict[str, type], prefix: str) -> dict[str, Any]:
+    """Each field of ``schema`` (at dotted ``prefix``) by name, with the schema of its value if it holds keys: a
+    nested schema, ``env``'s or ``planner``'s (:data:`SUB_SCHEMAS`), a group's options (a dict by option name);
+    ``None`` for a value. Of a group (``schema`` a dict of options), the fields of all its options."""
+    if isinstance(schema, dict):
+        merged: dict[str, Any] = {}
+        for option in dict.fromkeys(schema.values()):
+            for name, child in _fields(option, prefix).items():
+                merged.setdefault(name, child)
+        return merged
+    types = typing.get_type_hints(schema)
+    fields: dict[str, Any] = {}
+    for item in dataclasses.fields(schema):
+        if "options" in item.metadata:
+            fields[item.name] = item.metadata["options"]
+        elif dataclasses.is_dataclass(types[item.name]):
+            fields[item.name] = types[item.name]
+        else:
+            fields[item.name] = SUB_SCHEMAS.get(prefix + item.name)
+    return fields
+
+
+def unknown_key_allowed(schema: type, key: str) -> str | None:
+    """What is allowed in place of dotted ``key`` in a config of ``schema`` (an app's): the keys of the deepest
+    group of keys on its path, the closest name first if one is close; ``None`` if ``key`` is a field. A
+    group's keys are its options' together."""
+    parts = key.split(".")
+    current: Any = schema
+    for depth, part in enumerate(parts):
+        prefix = ".".join(parts[:depth])
+        fields = _fields(current, prefix + "." if prefix else "")
+        last = depth + 1 == len(parts)
+        if part in fields and (last or fields[part] is not None):
+            if last:
+                return None
+            current = fields[part]
+            continue
+        return keys_allowed(list(fields), prefix, part)
+    return None
+
+
+def keys_allowed(names: list[str], prefix: str, part: str) -> str:
+    """What is allowed in place of ``part``, a key that the group of keys at dotted ``prefix`` ("" for the top
+    level) does not have: its keys ``names``, with the one close to ``part``, or that ``part`` is a value there
+    (with no keys under it)."""
+    dotted = prefix + "." if prefix else ""
+    if part in names:
+        hint = f" ({dotted}{part} is a value, not a group of keys)"
+    else:
+        close = difflib.get_close_matches(part, names, n=1)
+        hint = f" (did you mean {dotted}{close[0]}?)" if close else ""
+    owner = f"{prefix}'s" if prefix else "the config's"
+    return f"one of {owner} keys{hint}: {', '.join(names)}"
+
+
+def check_known_keys(cfg: DictConfig, schema: type, prefix: str = "") -> None:
+    """Every key of ``cfg`` (an app's composed config, or its node at dotted ``prefix``) is a field of ``schema``,
+    walked as :func:`check_settings` walks it (a group by its chosen option; ``env`` and ``planner`` by
+    :data:`SUB_SCHEMAS`); a :class:`ConfigError` names the first other key (one added with Hydra's ``+``) and
+    the keys allowed there."""
+    fields = _fields(schema, prefix)
+    for name in cfg:
+        key, node = prefix + str(name), cfg._get_node(name)
+        require(name in fields, key, node._value(), keys_allowed(list(fields), prefix[:-1], str(name)))
+        child = fields[name]
+        if isinstance(child, dict) and OmegaConf.is_dict(node):  # a group: its chosen option's schema
+            child = child.get(str(node.get("name")))  # an unknown option: check_settings names it
+        if child is not None and OmegaConf.is_dict(node):
+            check_known_keys(node, child, key + ".")
+
+
 def validate_train_config(cfg: DictConfig) -> None:
     """Check the composed ``aia-train`` config (conf/train.yaml); raise ``ConfigError`` on the first bad value."""
+    check_known_keys(cfg, TrainConfig)
     check_settings(cfg, TrainConfig)
     require(cfg.batch_size <= cfg.buffer_size, "batch_size", cfg.batch_size,
             f"at most buffer_size={cfg.buffer_size} (a batch is drawn from the replay buffer)")
@@ -75,6 +153,7 @@ def validate_eval_config(cfg: DictConfig, overrides: Sequence[str] = ()) -> None
     (``HydraConfig.get().overrides.task``): with ``policy=checkpoint`` or ``pursuit`` a ``planner`` override,
     which it would ignore, is refused (an ``env`` override sets the setting a checkpoint is evaluated in:
     ``aia.apps.evaluate`` checks it against the checkpoint)."""
+    check_known_keys(cfg, EvalConfig)
     check_settings(cfg, EvalConfig)
     if cfg.policy == "arvi":
         to_tracking_config(cfg.env)
@@ -113,5 +192,6 @@ def check_checkpoint_file(key: str, path: Path) -> None:
 
 def validate_rollout_config(cfg: DictConfig) -> None:
     """Check the composed ``aia-rollout`` config (conf/rollout.yaml)."""
+    check_known_keys(cfg, RolloutConfig)
     check_settings(cfg, RolloutConfig)
     to_tracking_config(cfg.env)

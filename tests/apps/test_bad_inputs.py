@@ -62,7 +62,15 @@ TRAIN_CASES = [
     (["env.sensor.range=-3"], ["env.sensor.range=-3", "> 0"]),
     (["env=schema"], ["env/schema", "empty1"]),
     (["env=variant_2019"], ["env/variant_2019", "small3_2019"]),
-    (["lr2=1"], ["lr2", "+lr2=1"]),
+    # a key the config lacks: the keys it has there, the close one first, not Hydra's advice to add it with +
+    (["lr2=1"], ["lr2='1'", "the config's keys (did you mean lr?): seed, lr,"]),
+    (["+lr2=1"], ["lr2=1", "did you mean lr?"]),  # added with +: a run would ignore it
+    (["+env.sensor.rang=3"], ["env.sensor.rang=3", "env.sensor's keys (did you mean env.sensor.range?)"]),
+    (["algo=adfq", "+algo.foo=1"], ["algo.foo=1", "algo's keys: name, loss_function, noise"]),
+    (["+algo.sd_max=1"], ["algo.sd_max=1", "algo's keys: name, loss_function"]),  # algo=dqn's keys
+    (["algo.sd_max=1"], ["algo.sd_max='1'", "algo's keys: name, loss_function"]),
+    (["env=ttenv_v4", "env.features.local_map.im_size=0"],
+     ["env.features.local_map.im_size='0'", "env.features.local_map is a value", "im_size"]),
     (["env.sensor.range=abc"], ["env.sensor.range=abc", "Float"]),
 ]
 
@@ -119,6 +127,9 @@ def test_eval_rejects_bad_input_in_one_line(not_a_checkpoint, tmp_path, monkeypa
         (["policy=arvi", "planner=psychic"], ["planner/psychic", "arvi"]),
         (["policy=pursuit", "planner.horizon=3"], ["planner.horizon='3'", "policy=pursuit"]),
         (["policy=pursuit", "pursuit_standoff=2"], ["pursuit_standoff=2", "<= 1"]),
+        (["policy=arvi", "planner.nodes=3"], ["planner.nodes='3'", "did you mean planner.max_nodes?"]),
+        (["policy=arvi", "+planner.nodes=3"],
+         ["planner.nodes=3", "planner's keys (did you mean planner.max_nodes?): horizon,"]),
     ]
     for argv, words in cases:
         code, err = run_app(evaluate.main, argv, tmp_path, monkeypatch, capsys)
@@ -140,7 +151,8 @@ def test_rollout_rejects_bad_input_in_one_line(bad_map, tmp_path, monkeypatch, c
         (["num_worlds=0"], ["num_worlds=0", ">= 1"]),
         (["seed=-1"], ["seed=-1", ">= 0"]),
         (["compile=maybe"], ["compile='maybe'", "true or false"]),
-        (["env.num_targetz=2"], ["env.num_targetz"]),
+        (["env.num_targetz=2"], ["env.num_targetz='2'", "did you mean env.num_targets?"]),
+        (["+env.features.im_sz=3"], ["env.features.im_sz=3", "did you mean env.features.im_size?"]),
         (["env=nowhere"], ["env/nowhere", "obstacles1"]),
         ([f"env.map={bad_map}"], [str(bad_map), "boxes[0]"]),
         (["env.map=atlantis"], ["env.map='atlantis'", "obstacles4"]),

@@ -5,8 +5,10 @@ from __future__ import annotations
 import pytest
 from hydra import compose, initialize_config_module
 
+from aia.apps.hydra_app import group_options
 from aia.config.errors import ConfigError
-from aia.config.validation import validate_eval_config, validate_rollout_config, validate_train_config
+from aia.config.schemas import EvalConfig, RolloutConfig, TrainConfig
+from aia.config.validation import check_known_keys, validate_eval_config, validate_rollout_config, validate_train_config
 
 PRESETS = [[], ["experiment=paper_obstacles1", "method=adfq_ts"], ["experiment=paper_small3", "method=ddqn"],
            ["env=small2_2019", "algo=adfq", "logger=csv"], ["logger=none", "eval.per_rollout=50"]]
@@ -36,3 +38,20 @@ def test_cross_field_rules_name_both_fields():
         validate_train_config(cfg)
     error = ConfigError("lr", -1.0, "a number > 0", source="conf.yaml")
     assert str(error) == "conf.yaml: lr=-1.0: expected a number > 0" and error.key == "lr"
+
+
+def test_every_shipped_preset_has_only_the_schemas_keys():
+    # the check that refuses a key added with + must not refuse a key a shipped preset sets
+    for group in ("env", "experiment", "method", "algo", "exploration", "logger"):
+        for option in group_options(group).split(", "):
+            check_known_keys(_compose("train", [f"{group}={option}"]), TrainConfig)
+    check_known_keys(_compose("eval", ["policy=arvi", "env=ttenv_v5"]), EvalConfig)
+    check_known_keys(_compose("rollout", ["env=random_obstacles"]), RolloutConfig)
+
+
+def test_a_key_added_with_plus_is_refused_with_the_keys_there():
+    with pytest.raises(ConfigError, match=r"^exploration.eps_ennd=0.1: expected one of exploration's keys "
+                                          r"\(did you mean exploration.eps_end\?\): name, "):
+        validate_train_config(_compose("train", ["+exploration.eps_ennd=0.1"]))
+    with pytest.raises(ConfigError, match=r"^env.random_map.nope=1: expected one of env.random_map's keys: "):
+        validate_rollout_config(_compose("rollout", ["+env.random_map.nope=1"]))
