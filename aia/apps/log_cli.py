@@ -316,8 +316,9 @@ def _with_metric(runs: Sequence[RunLog], metric: str) -> list[RunLog]:
 
 
 def check_group_keys(runs: Sequence[RunLog], keys: Sequence[str]) -> None:
-    """Every ``--group-by`` key is a config key of at least one run; else a ValueError names it, the keys whose
-    values differ among the runs (what one would group by) and every key the runs have."""
+    """Every ``--group-by`` key is a config key set in at least one run; else a ValueError names it (or that no
+    run sets it), the keys whose values differ among the runs (what one would group by) and every key the runs
+    have."""
     for key in keys:
         if all(run.config_value(key) is None for run in runs):
             groups = {k.rsplit(".name", 1)[0] for run in runs for k in flatten(run.config()) if k.endswith(".name")}
@@ -328,7 +329,9 @@ def check_group_keys(runs: Sequence[RunLog], keys: Sequence[str]) -> None:
             keys = f"every key: {', '.join(available)}"
             if len(runs) > 1:
                 keys = f"the {len(runs)} runs differ in: {', '.join(differing) or 'no key'}; {keys}"
-            raise ValueError(f"--group-by {key!r}: no run has this config key; {keys}")
+            # a key every run leaves unset (method without conf/method/) is a key, with nothing to group by
+            problem = f"every run has {key}=None" if key in available else "no run has this config key"
+            raise ValueError(f"--group-by {key!r}: {problem}; {keys}")
 
 
 class OneLineParser(argparse.ArgumentParser):

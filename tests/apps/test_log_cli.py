@@ -19,9 +19,9 @@ from aia.logging import MCAPLogger, SceneRecorder
 from aia.logging.stats import rliable_modules
 
 
-def _fake_run(folder, algo, seed, scores, env_map="empty"):
+def _fake_run(folder, algo, seed, scores, env_map="empty", **config):
     logger = MCAPLogger("exp", folder)
-    logger.log_hparams({"algo": {"name": algo}, "seed": seed, "env": {"map": env_map, "max_steps": 50}})
+    logger.log_hparams({"algo": {"name": algo}, "seed": seed, "env": {"map": env_map, "max_steps": 50}, **config})
     for i, score in enumerate(scores):
         logger.log_scalar("eval/score", score, step=100 * (i + 1))
     logger.close()
@@ -194,6 +194,15 @@ def test_plot_refuses_a_group_by_key_that_no_run_has(tmp_path, capsys):
     assert err.count("\n") == 1 and "--group-by 'algoo'" in err
     assert "no run has this config key; every key: algo, algo.name, env.map, env.max_steps, seed\n" in err
     assert not (tmp_path / "c.png").exists()
+
+
+def test_plot_refuses_a_group_by_key_that_every_run_leaves_unset(tmp_path, capsys):
+    for seed in (0, 1):
+        _fake_run(tmp_path / f"m/{seed}", "adfq", seed, [1.0, 2.0], method=None)
+    assert main(["plot", str(tmp_path / "m"), "--group-by", "method", "--out", str(tmp_path / "c.png")]) == 2
+    assert capsys.readouterr().err == ("aia-log: error: --group-by 'method': every run has method=None; the 2 runs "
+                                       "differ in: seed; every key: algo, algo.name, env.map, env.max_steps, "
+                                       "method, seed\n")
 
 
 def test_summary_shows_a_failed_start(tmp_path, capsys):
