@@ -45,7 +45,9 @@
 #                ARVI_MIN_RANGES= (empty) runs no ARVI, e.g. to add learner seeds
 #
 # Each run's folder is named by what varies (e.g. $OUT/empty1/learners/method=adfq_ts,seed=3), so a later call
-# with more seeds or methods adds runs next to the ones already there instead of overwriting them.
+# with more seeds or methods adds runs next to the ones already there. A run folder is never trained or evaluated
+# over: give a later call only the new seeds (ARVI_MIN_RANGES= skips ARVI), or TRAIN_OVERRIDES="resume=auto",
+# with which the learner runs already there continue (a finished run stays as it is).
 set -euo pipefail
 # seed_list, parse_phases, machine_speed, phase, throttle, drain
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"

@@ -2,7 +2,8 @@
 
 ``resume=<path>`` continues from that checkpoint; ``resume=auto`` from the newest undamaged checkpoint in the
 run's own folder (``checkpoints/last.pt``, else ``checkpoints/previous.pt``, saying why) if there is one, else
-the run starts fresh (what a requeued cluster job needs: the same command in the same folder). A checkpoint
+the run starts fresh (what a requeued cluster job needs: the same command in the same folder); without
+``resume``, a folder that holds a run already is refused (its checkpoint and log are kept). A checkpoint
 whose records fail their CRC-32 check (:func:`~aia.training.checkpoint_files.checkpoint_damage`) is refused. A
 checkpoint of a run that differs in a setting that shapes what is learned (:data:`RESUME_KEYS`, the fields of
 :class:`~aia.config.schemas.TrainConfig` declared ``resume``: the env, the algorithm, the network, the
@@ -20,6 +21,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from aia.config.checks import require
 from aia.config.composing import compose_config
 from aia.config.errors import ConfigError
 from aia.config.schemas import TrainConfig, keys_where
@@ -40,10 +42,20 @@ class ResumeSource:
 
 
 def resume_path(cfg: DictConfig, out_dir: Path) -> ResumeSource | None:
-    """The checkpoint this run continues from, or None for a fresh start; ``resume=auto`` with no undamaged
-    checkpoint in the folder (but a damaged one) is refused with a :class:`ConfigError`."""
-    resume = cfg.get("resume")
+    """The checkpoint this run continues from, or None for a fresh start; refused with a :class:`ConfigError`:
+    ``resume=auto`` with no undamaged checkpoint in the folder (but a damaged one), and a fresh start
+    (``resume=null``) in a folder that holds a run (a checkpoint or the run log), whose checkpoint it would
+    replace and whose log's history it would hide behind its own."""
+    if "resume" not in cfg:  # not a training run's config (the population launcher groups aia-eval's jobs too)
+        return None
+    resume = cfg.resume
     if resume is None:
+        log = cfg.logger.get("file")
+        held = [path for path in (out_dir / CHECKPOINT_NAME, out_dir / PREVIOUS_CHECKPOINT_NAME,
+                                  out_dir / str(log) if log else None) if path is not None and path.exists()]
+        require(not held, "resume", None, f"auto to continue the run in {out_dir} ({held[0] if held else ''} is "
+                "there), or another run folder (hydra.run.dir) for a fresh run: it would replace that run's "
+                "checkpoint and hide its log")
         return None
     if str(resume) != "auto":
         return ResumeSource(Path(str(resume)))
@@ -71,11 +83,12 @@ def checkpoint_point(checkpoint: dict) -> tuple[int, int, int, int]:
 
 def resume_point(cfg: DictConfig, out_dir: Path) -> tuple[int, int, int, int] | str | None:
     """Where this run continues from, to group runs into populations: its checkpoint's :func:`checkpoint_point`,
-    ``None`` for a fresh start, or the path of a checkpoint it cannot read (that run then fails alone, with
-    :func:`load_resumable`'s line). Reads only the checkpoint's counters (its tensors are mapped, not loaded)."""
+    ``None`` for a fresh start, or the path of a checkpoint it cannot read or may not start over (that run then
+    fails alone, with :func:`resume_path`'s or :func:`load_resumable`'s line). Reads only the checkpoint's
+    counters (its tensors are mapped, not loaded)."""
     try:
         source = resume_path(cfg, out_dir)
-    except ConfigError:  # resume=auto and only damaged checkpoints
+    except ConfigError:  # resume=auto and only damaged checkpoints, or a fresh start over a run
         return str(out_dir / CHECKPOINT_NAME)
     if source is None:
         return None

@@ -93,13 +93,13 @@ def start_resource_tracker_blocking(signum: int) -> None:
 
 
 def resumed(call: Call) -> Call:
-    """``call`` with ``resume=auto`` for every member whose job folder holds a checkpoint (``last.pt`` or
-    ``previous.pt``; the others keep their own ``resume``: a task stopped before its first checkpoint starts as it
-    started the first time)."""
+    """``call`` with ``resume=auto`` for every training member whose job folder holds a checkpoint (``last.pt`` or
+    ``previous.pt``) or that started fresh (a task stopped before its first checkpoint starts afresh, where a
+    fresh start would be refused over the log its first run left); a member's ``resume=<path>`` stays."""
     task, cfgs, out_dirs, threads = call
     has_checkpoint = training().has_checkpoint
-    cfgs = [{**cfg, "resume": "auto"} if has_checkpoint(out_dir) else cfg
-            for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
+    cfgs = [{**cfg, "resume": "auto"} if "resume" in cfg and (cfg["resume"] is None or has_checkpoint(out_dir))
+            else cfg for cfg, out_dir in zip(cfgs, out_dirs, strict=True)]
     return task, cfgs, out_dirs, threads
 
 

@@ -50,7 +50,7 @@ def _call(entry: str, tmp_path, resumes=(None, None)) -> slurm.Call:
     """Two members in job folders ``a`` and ``b`` (each made), with these ``resume`` values."""
     out_dirs = [tmp_path / "a", tmp_path / "b"]
     for out_dir in out_dirs:
-        out_dir.mkdir(exist_ok=True)
+        out_dir.mkdir(parents=True, exist_ok=True)
     return entry, [{"seed": k, "resume": resume} for k, resume in enumerate(resumes)], [str(d) for d in out_dirs], 1
 
 
@@ -80,7 +80,8 @@ def test_a_population_job_requeues_at_its_time_limit_until_its_requeues_are_used
 
 def test_a_task_run_again_continues_the_members_that_have_a_checkpoint(entry, tmp_path, monkeypatch, capsys):
     """Run again (``SLURM_RESTART_COUNT`` > 0), a member with a checkpoint in its folder resumes from it; one
-    without keeps its own ``resume`` (here a checkpoint of another run to start from)."""
+    without keeps its own ``resume`` (here a checkpoint of another run to start from), or continues with
+    ``resume=auto`` if it started fresh."""
     call = _call(entry, tmp_path, resumes=(None, "/elsewhere/last.pt"))
     (tmp_path / "a" / CHECKPOINT_NAME).parent.mkdir()
     (tmp_path / "a" / CHECKPOINT_NAME).write_bytes(b"")
@@ -91,6 +92,13 @@ def test_a_task_run_again_continues_the_members_that_have_a_checkpoint(entry, tm
     assert slurm.PopulationJob(max_requeues=3)(call)[0] == "done"
     assert (tmp_path / "resumes.txt").read_text() == "auto /elsewhere/last.pt"
     assert "run 2 of this SLURM task" in capsys.readouterr().out
+
+    # a member that started fresh continues with resume=auto too (it may have left a log, a fresh start over
+    # which is refused; without a checkpoint, auto starts afresh); aia-eval's members have no resume
+    _, cfgs, _, _ = slurm.resumed(_call(entry, tmp_path / "fresh", resumes=(None, "/elsewhere/last.pt")))
+    assert [cfg["resume"] for cfg in cfgs] == ["auto", "/elsewhere/last.pt"]
+    _, cfgs, _, _ = slurm.resumed((entry, [{"seed": 0, "policy": "arvi"}], [str(tmp_path / "a")], 1))
+    assert cfgs == [{"seed": 0, "policy": "arvi"}]
 
 
 @pytest.mark.parametrize("blocking", [True, False])

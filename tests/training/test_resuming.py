@@ -17,7 +17,7 @@ from hydra import compose, initialize_config_module
 from aia.config.errors import ConfigError
 from aia.logging import find_runs, read_run
 from aia.training import train
-from aia.training.resuming import load_resumable, resume_point
+from aia.training.resuming import load_resumable, resume_path, resume_point
 from aia.training.stopping import StopOnSignals
 
 SMALL = ("env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16", "hidden=[32,32]",
@@ -108,10 +108,24 @@ def test_resume_point_is_where_a_run_continues_without_loading_it_for_training(t
     state = train(cfg, tmp_path / "a")
     assert resume_point(auto, tmp_path / "a") == (120, state.updates, state.episodes, state.evaluations) == (
         120, 21, 3, 3)
-    assert resume_point(cfg, tmp_path / "a") is None  # no resume asked for
+    # no resume asked for, over a run: that job fails alone (resume_path's refusal)
+    assert resume_point(cfg, tmp_path / "a") == str(tmp_path / "a" / "checkpoints" / "last.pt")
+    with pytest.raises(ConfigError, match=r"^resume=None: expected auto to continue the run in .*last.pt is there"):
+        train(cfg, tmp_path / "a")
+    assert resume_point(auto, tmp_path / "a")[0] == 120  # its checkpoint is as it was
     broken = tmp_path / "broken.pt"
     broken.write_text("not a checkpoint")
     assert resume_point(_config(*SMALL, f"resume={broken}"), tmp_path / "b") == str(broken)
+
+
+def test_a_fresh_run_over_a_run_log_alone_is_refused_and_the_log_kept(tmp_path):
+    # a run killed before its first checkpoint leaves its log only; resume=auto continues it as a fresh start
+    (tmp_path / "run.mcap").write_bytes(b"an earlier run's log")
+    with pytest.raises(ConfigError, match=r"^resume=None: expected auto .*run.mcap is there"):
+        resume_path(_config(*SMALL), tmp_path)
+    assert resume_path(_config(*SMALL, "resume=auto"), tmp_path) is None
+    assert resume_path(_config(*SMALL, "logger=csv"), tmp_path) is None  # no run log of that name
+    assert (tmp_path / "run.mcap").read_bytes() == b"an earlier run's log"
 
 
 def test_resume_auto_after_kill_9_gives_the_uninterrupted_history(tmp_path):
