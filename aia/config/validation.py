@@ -110,20 +110,21 @@ def keys_allowed(names: list[str], prefix: str, part: str) -> str:
     return f"one of {owner} keys{hint}: {', '.join(names)}"
 
 
-def check_known_keys(cfg: DictConfig, schema: type, prefix: str = "") -> None:
-    """Every key of ``cfg`` (an app's composed config, or its node at dotted ``prefix``) is a field of ``schema``,
-    walked as :func:`check_settings` walks it (a group by its chosen option; ``env`` and ``planner`` by
-    :data:`SUB_SCHEMAS`); a :class:`ConfigError` names the first other key (one added with Hydra's ``+``) and
+def check_known_keys(cfg: DictConfig | dict, schema: type, prefix: str = "") -> None:
+    """Every key of ``cfg`` (an app's composed config, or its node at dotted ``prefix`` as a dict) is a field of
+    ``schema``, walked as :func:`check_settings` walks it (a group by its chosen option; ``env`` and ``planner``
+    by :data:`SUB_SCHEMAS`); a :class:`ConfigError` names the first other key (one added with Hydra's ``+``) and
     the keys allowed there."""
+    node = cfg if isinstance(cfg, dict) else OmegaConf.to_container(cfg, resolve=False)
     fields = _fields(schema, prefix)
-    for name in cfg:
-        key, node = prefix + str(name), cfg._get_node(name)
-        require(name in fields, key, node._value(), keys_allowed(list(fields), prefix[:-1], str(name)))
+    for name, value in node.items():
+        key = prefix + str(name)
+        require(name in fields, key, value, keys_allowed(list(fields), prefix[:-1], str(name)))
         child = fields[name]
-        if isinstance(child, dict) and OmegaConf.is_dict(node):  # a group: its chosen option's schema
-            child = child.get(str(node.get("name")))  # an unknown option: check_settings names it
-        if child is not None and OmegaConf.is_dict(node):
-            check_known_keys(node, child, key + ".")
+        if isinstance(child, dict) and isinstance(value, dict):  # a group: its chosen option's schema
+            child = child.get(str(value.get("name")))  # an unknown option: check_settings names it
+        if child is not None and isinstance(value, dict):
+            check_known_keys(value, child, key + ".")
 
 
 def validate_train_config(cfg: DictConfig) -> None:
