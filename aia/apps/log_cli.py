@@ -204,11 +204,13 @@ def results_table(curves: Sequence, metric: str, x_axis: str, baselines: Sequenc
 def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[str], metric: str
                   ) -> list[tuple[str, list[RunLog]]]:
     """The baselines of ``--baseline`` / ``--baseline-label`` as (label, runs): with one label or none, all
-    ``paths`` pool into one baseline; with one label per path, each path is a baseline of its own."""
+    ``paths`` pool into one baseline; with one label per path, each path is a baseline of its own. Without a
+    label, the baseline is named by the ``policy`` its runs share (``aia-eval``'s: arvi, pursuit), else
+    "baseline"."""
     if not paths:
         return []
     if len(labels) <= 1:
-        groups = [(labels[0] if labels else "baseline", list(paths))]
+        groups = [(labels[0] if labels else None, list(paths))]
     elif len(labels) == len(paths):
         groups = [(label, [path]) for label, path in zip(labels, paths, strict=True)]
     else:
@@ -218,7 +220,11 @@ def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[s
     for label, group in groups:
         runs = _with_metric(select_runs(_read_all(group), where), metric)
         if not runs:
-            raise ValueError(f"no {label} run in {group} matches --where {list(where)} and has {metric!r}")
+            raise ValueError(f"no {label or 'baseline'} run in {group} matches --where {list(where)} and has "
+                             f"{metric!r}")
+        if label is None:
+            policies = {str(run.config_value("policy")) for run in runs}
+            label = policies.pop() if len(policies) == 1 and "None" not in policies else "baseline"
         baselines.append((label, runs))
     return baselines
 

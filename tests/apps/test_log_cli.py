@@ -248,7 +248,7 @@ def _stats_runs(root):
             _fake_run(root / f"m/{algo}{seed}", algo, seed, (level * (1 - np.exp(-np.arange(1, 11) / 3))
                                                              + rng.normal(0, 100, 10)).round(1).tolist())
     for seed in range(4):
-        _fake_run(root / f"arvi/{seed}", "arvi", seed, [float(1000 + 50 * seed)])
+        _fake_run(root / f"arvi/{seed}", "arvi", seed, [float(1000 + 50 * seed)], policy="arvi")
 
 
 def test_stats_equals_rliable_called_directly(tmp_path, capsys):
@@ -313,7 +313,8 @@ def test_stats_refuses_a_bad_group_key_too_few_runs_and_bad_options_in_one_line(
                                       "algo, seed; every key: algo, algo.name"),
             (["--group-by", "seed"], "'seed=0' has 2 runs: --statistic iqm needs at least 4 (iqm needs 4, mean "
                                      "needs 2)"),
-            (["--baseline", str(tmp_path / "arvi/0")], "'baseline' has 1 run: --statistic iqm needs at least 4"),
+            # named without --baseline-label by the policy of aia-eval's runs
+            (["--baseline", str(tmp_path / "arvi/0")], "'arvi' has 1 run: --statistic iqm needs at least 4"),
             (["--statistic", "median"], "argument --statistic: invalid choice: 'median' (choose from 'iqm', 'mean')"),
             (["--verdict-by", "ci"], "invalid choice: 'ci' (choose from 'poi', 'difference')"),
             (["--ci-level", "95"], "--ci-level 95.0: expected a number in (0, 1), e.g. 0.95"),
