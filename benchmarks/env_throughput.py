@@ -4,7 +4,8 @@ For each setting and batch size B, steps the env (with its feature and reward tr
 number of batched steps after a warm-up and reports frames/s (= B * steps / seconds) and the time of one
 batched step. Each case runs in a fresh process, as a user's run would (in one long process, compiled
 code of earlier envs adds guard checks to later ones). Prints a table and writes JSON (default
-``benchmarks/results/env_throughput_<device>.json``).
+``benchmarks/results/env_throughput_<device>.json``), whose ``meta`` names the commit (and whether the checkout
+was dirty), the arguments, the start and end (UTC) and the machine's matmul rate before and after.
 
 A case is a preset, optionally with env overrides after a colon (``small2:belief.filter=particle``).
 ``--filters`` measures one case per belief filter (kf, the UKF over 3 and 5 states, the particle filter with
@@ -41,7 +42,8 @@ import torch
 
 from aia.envs import make_env
 from aia.envs.factory import available_settings
-from aia.runtime.timing import synchronize
+from aia.logging.mcap_logger import git_state
+from aia.runtime.timing import sgemm_gflops, synchronize, utc_now
 
 SETTINGS = ("empty1", "obstacles1", "small2", "small3")
 # One case per belief filter: kf, the UKF over [x, y, theta] and [x, y, theta, v, w], particles K = 256, 1024.
@@ -196,6 +198,7 @@ def main() -> None:
     if args.relative_to is not None and args.relative_to not in settings:
         parser.error(f"--relative-to {args.relative_to!r} is not one of the settings measured: {settings}")
     rows = []
+    started, gflops_before = utc_now(), sgemm_gflops(device=args.device)
     with tempfile.TemporaryDirectory() as tmp:
         codes = {"now": None}
         if args.baseline:
@@ -230,6 +233,12 @@ def main() -> None:
     out = args.out or Path(__file__).parent / "results" / f"env_throughput_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
+        "started_utc": started,
+        "finished_utc": utc_now(),
+        **git_state(HERE),
+        "argv": sys.argv[1:],
+        "sgemm_gflops_before": gflops_before,
+        "sgemm_gflops_after": sgemm_gflops(device=args.device),
         "torch": torch.__version__,
         "threads": torch.get_num_threads(),
         "machine": platform.machine(),

@@ -72,7 +72,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import datetime
 import functools
 import itertools
 import json
@@ -99,7 +98,7 @@ from aia.envs import make_env
 from aia.logging.mcap_logger import git_state
 from aia.modules import StackedConvQNetwork, make_q_network
 from aia.modules.q_networks import make_qvalue_actor, same_padding
-from aia.runtime.timing import sgemm_gflops, synchronize
+from aia.runtime.timing import sgemm_gflops, synchronize, utc_now
 from aia.training import train_population
 from aia.training.components import make_loss, make_network, make_stacked_network, map_shape
 from aia.training.optimizer import StackedAdam, Updater
@@ -122,11 +121,6 @@ BUFFER_SIZE, TARGET_PERIOD = 1000, 51
 LOOP_SWITCHES = ("update", "env", "policy")
 _SYNC_SITE_PACKAGES = ("aia", "torchrl", "tensordict")  # the packages whose lines name a host-device sync
 HERE = Path(__file__).parent
-
-
-def _utc_now() -> str:
-    """The time now, UTC, to the second (ISO 8601): when a run's rows were taken, to set beside the VM's speed."""
-    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
 def _config(*overrides: str):
@@ -544,7 +538,7 @@ def main() -> None:
     out = args.out or HERE / "results" / f"population_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     gflops_before = sgemm_gflops(device=args.device)
-    meta = {"started_utc": _utc_now(), **git_state(HERE), "argv": sys.argv[1:], "torch": torch.__version__,
+    meta = {"started_utc": utc_now(), **git_state(HERE), "argv": sys.argv[1:], "torch": torch.__version__,
             "threads": torch.get_num_threads(), "machine": platform.machine(),
             "gpu": torch.cuda.get_device_name(args.device) if on_gpu else None,
             "load_average_1_5_15min": os.getloadavg(), "sgemm_gflops_before": gflops_before,
@@ -639,7 +633,7 @@ def main() -> None:
                   flush=True)
 
     meta["sgemm_gflops_after"] = sgemm_gflops(device=args.device)
-    meta["finished_utc"] = _utc_now()
+    meta["finished_utc"] = utc_now()
     save()
     print(f"wrote {out}")
 

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import datetime
 import time
 
 
@@ -51,6 +52,12 @@ class _TimedPhase:
 
     def __exit__(self, *exc_info: object) -> None:
         self.timer.add(self.phase, time.perf_counter() - self.start)
+
+
+def utc_now() -> str:
+    """The time now, UTC, to the second (ISO 8601): when a measurement was taken, to set beside the machine's
+    speed then (a shared VM's speed swings between hours)."""
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
 def sgemm_gflops(size: int | None = None, calls: int = 30, device: str = "cpu") -> float:
