@@ -13,7 +13,9 @@
 #   SEEDS        learner seeds [0-4] (ranges as in scripts/reproduce.sh);  METHODS  learners [dqn,adfq_ts]
 #   TRAINED_ON   training settings [paper_obstacles1 random_obstacles random_obstacles_local_map]
 #   FRAMES       override of each experiment's training length [the experiment's: 200 training episodes]
-#   TRAIN_OVERRIDES  more aia-train overrides, space-separated []
+#   TRAIN_OVERRIDES  more aia-train overrides, space-separated []; "resume=auto" continues the learners of a
+#                stopped call from their checkpoints (a learner run folder is never trained over: without it, a
+#                call over runs already there is refused for those runs)
 #   EPISODES     evaluation episodes per policy and map [100];  EVAL_SEED  their seed [1000]
 #   ARVI_SEEDS   ARVI seeds per map [0-4];  ARVI_EPISODES  episodes per ARVI seed [20]
 #   ARVI_NODES   ARVI's node budget per world and plan [25000];  ARVI_MIN_RANGE  planner.min_range [2]
