@@ -108,6 +108,11 @@ def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at
                "logger.record_every_evaluations=0"]
     logs = [sweep_dir / str(job) / "run.mcap" for job in range(4)]
     deadline = time.monotonic() + slurm_cluster.sweep_timeout_s
+    # the two tasks must train side by side (both are signalled while they train): with another test's job on
+    # one of the node's two CPUs, the first task could finish before the second starts (seen once in a full run)
+    while _squeue_all():
+        assert time.monotonic() < deadline, f"the queue never emptied: {slurm_cluster.queue()}"
+        time.sleep(0.5)
     sweep = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                              env=slurm_cluster.env(), cwd=tmp_path)
 
@@ -189,6 +194,12 @@ def _end(sweep: subprocess.Popen, name: str, settle_s: float = 30.0) -> None:
         while _squeue(name) and time.monotonic() < deadline:
             time.sleep(0.5)
     subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
+
+
+def _squeue_all() -> str:
+    """The ids of every queued job, whoever submitted it (empty when the queue is)."""
+    return subprocess.run(["squeue", "--noheader", "--format", "%i"], capture_output=True, text=True, check=True,
+                          timeout=30).stdout.strip()
 
 
 def _squeue(name: str, field: str = "%i") -> str:
