@@ -78,7 +78,8 @@ def _start(point: tuple[int, ...] | str | None) -> str:
         return "starting fresh"
     if isinstance(point, tuple):
         return f"resuming from frame {point[0]:,}"
-    return f"resuming from {point}"  # a checkpoint it cannot read: it fails alone, saying why
+    # a checkpoint it cannot read, or a run it may not start over (resume=null): it fails alone, saying why
+    return f"cannot start from {point} (it fails alone, saying why)"
 
 
 def split_to_fill(groups: list[list[int]], processes: int) -> list[list[int]]:
@@ -126,11 +127,12 @@ def _minutes(seconds: float) -> str:
 
 
 def done_line(done: int, total: int, start: float, name: str, outcome: Outcome) -> str:
-    """``"population launcher: 2/3 done after 1:05: jobs 0-1, 1 failed"``: what is said as a population ends
-    (``start``: the ``time.monotonic()`` the populations started at)."""
+    """``"population launcher: 2/3 done after 1:05: jobs 0-1 (1 of 2 failed)"`` (one job: ``"job 4 (failed)"``):
+    what is said as a population ends (``start``: the ``time.monotonic()`` the populations started at)."""
     failed = sum(not ok for ok, _ in outcome)
-    return (f"population launcher: {done}/{total} done after {_minutes(time.monotonic() - start)}: {name}"
-            + (f", {failed} failed" if failed else ""))
+    if failed:
+        name += " (failed)" if len(outcome) == 1 else f" ({failed} of {len(outcome)} failed)"
+    return f"population launcher: {done}/{total} done after {_minutes(time.monotonic() - start)}: {name}"
 
 
 class PopulationLauncher(Launcher):

@@ -121,7 +121,7 @@ def test_a_sweep_over_methods_plots_grouped_by_method(tmp_path, monkeypatch, cap
 
 def test_a_member_with_a_bad_value_fails_alone(tmp_path, monkeypatch, capsys):
     returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1", "lr=1e-3,-1", exit_code=2)
-    assert re.search(r"population launcher: 1/1 done after 0:\d\d: jobs 0-3, 2 failed\n", out)
+    assert re.search(r"population launcher: 1/1 done after 0:\d\d: jobs 0-3 \(2 of 4 failed\)\n", out)
     assert [r.status for r in returns] == [JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.COMPLETED,
                                            JobStatus.FAILED]
     assert "lr=-1" in str(returns[1]._return_value)
@@ -150,7 +150,7 @@ def test_a_population_whose_process_dies_fails_alone_and_the_others_train(tmp_pa
     assert [r.status for r in returns] == [JobStatus.COMPLETED] * 2 + [JobStatus.FAILED] * 2
     died = "jobs 2-3: the process running their population exited with status 9 before returning its results"
     assert died in str(returns[2]._return_value) and died in str(returns[3]._return_value)
-    assert re.search(r"population launcher: \d/2 done after 0:\d\d: jobs 2-3, 2 failed\n", out)
+    assert re.search(r"population launcher: \d/2 done after 0:\d\d: jobs 2-3 \(2 of 2 failed\)\n", out)
     assert all(read_run(tmp_path / "sweep" / str(job) / "run.mcap").complete for job in (0, 1))
     # the worker's lines and its bar's progress reach the launcher, which prints them whole
     assert re.search(r"\ntraining dqn \(egreedy\) on .* as a population of 2, seeds \[0, 1\]\n", out)
@@ -231,6 +231,14 @@ def test_a_grown_sweep_resumes_its_old_jobs_and_starts_its_new_ones_as_populatio
         checkpoint = torch.load(tmp_path / "sweep" / str(job) / "checkpoints" / "last.pt", weights_only=False)
         assert checkpoint["state"]["frames"] == 160
     assert f"resuming from {tmp_path / 'sweep' / '0' / 'checkpoints' / 'last.pt'} at frame 130" in out
+    # the sweep grown again without resume=auto: the runs there are refused, each alone, the new job trains
+    monkeypatch.undo()
+    returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1,2,3", "frames=160", exit_code=2)
+    assert "population launcher: job 0: cannot start from " in out
+    assert [r.status for r in returns] == [JobStatus.FAILED] * 3 + [JobStatus.COMPLETED]
+    assert "resume=None: expected auto to continue the run in" in str(returns[0]._return_value)
+    kept = torch.load(tmp_path / "sweep" / "0" / "checkpoints" / "last.pt", weights_only=False)
+    assert kept["state"]["frames"] == 160  # the refused job's checkpoint as it was
 
 
 def test_a_job_that_differs_from_all_others_runs_alone_and_says_why(tmp_path, monkeypatch, capsys):
