@@ -45,7 +45,7 @@ from aia.policies import BeliefPursuitPolicy
 from aia.runtime.memory import keep_freed_memory
 from aia.training import make_actor
 from aia.training.components import observation_layout
-from aia.training.members import check_population
+from aia.training.members import check_population, flat_settings
 
 POLICIES = ("checkpoint", "arvi")
 
@@ -90,7 +90,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
         cfg.env = setting  # the logged config names the setting its episodes ran in
     env = make_env(to_tracking_config(cfg.env), batch_size=episodes, device=device, seed=seed)
     if setting is not None:
-        _check_layout(path, _layout(setting), trained)
+        _check_layout(path, setting, trained)
     actor = make_actor(cfg, env)
     actor.load_state_dict(checkpoint["actor"])
     policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec.n, epsilon, epsilon, 1, seed=seed,
@@ -126,7 +126,7 @@ def check_setting(path: str | Path, setting: DictConfig) -> None:
     """Refuse, with one line naming both layouts, to evaluate the checkpoint at ``path`` in ``setting`` (an env
     config) if its observation's layout differs from the setting the checkpoint was trained in."""
     trained = OmegaConf.create(load_checkpoint(path)["config"]).env
-    _check_layout(path, _layout(setting), trained)
+    _check_layout(path, setting, trained)
 
 
 def _layout(setting: DictConfig) -> str:
@@ -141,11 +141,26 @@ def _layout_of(setting: str) -> str:
     return observation_layout(make_env(to_tracking_config(OmegaConf.create(setting)), batch_size=1).observation_spec)
 
 
-def _check_layout(path: str | Path, layout: str, trained: DictConfig) -> None:
-    """A :class:`ConfigError` on ``env`` unless ``layout`` is the layout of ``trained`` (the checkpoint's env)."""
-    expected = _layout(trained)
-    require(layout == expected, "env", layout, f"the observation layout of the setting {path} was trained in, "
-            f"{expected} (the same belief features and map image; the map itself may differ)")
+# the env keys that shape the observation, named first when a setting's layout differs from a checkpoint's
+_LAYOUT_KEYS = ("num_targets", "features.local_map", "features.im_size", "features.relative_velocity", "target.model")
+
+
+def _check_layout(path: str | Path, setting: DictConfig, trained: DictConfig) -> None:
+    """A :class:`ConfigError` on ``env`` unless ``setting``'s observation layout is that of ``trained`` (the
+    checkpoint's env), naming the layouts and the keys in which the settings differ (those that shape the
+    observation first, three at most)."""
+    layout, expected = _layout(setting), _layout(trained)
+    if layout == expected:
+        return
+    ours, theirs = (flat_settings(OmegaConf.structured(to_tracking_config(s))) for s in (setting, trained))
+    rank = {key: i for i, key in enumerate(_LAYOUT_KEYS)}
+    differing = sorted((key for key in ours if ours[key] != theirs.get(key)),
+                       key=lambda key: (rank.get(key, len(rank)), key))
+    named = ", ".join(f"env.{key}={ours[key]!r} ({theirs.get(key)!r} there)" for key in differing[:3])
+    more = f" and {len(differing) - 3} more" if len(differing) > 3 else ""
+    raise ConfigError("env", layout, f"the observation layout of the setting {path} was trained in, {expected} (the "
+                      f"same belief features and map image; the map itself may differ); this setting differs from "
+                      f"it in {named}{more}")
 
 
 def evaluate_planner(env_cfg: DictConfig, planner_cfg: DictConfig, episodes: int, seed: int, device: str,

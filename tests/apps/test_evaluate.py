@@ -194,10 +194,11 @@ def test_a_map_checkpoint_plays_on_another_map_of_its_layout_and_another_layout_
     trained = "layout of the setting {} was trained in, observation [8]{}"
     maps, features = trained.format(map_checkpoint, ", local_map [1, 8, 8] ("), trained.format(checkpoint, " (")
     for path, overrides, words in (
-            (map_checkpoint, ["env=ttenv_v1"], ["env='observation [8]'", maps]),
+            (map_checkpoint, ["env=ttenv_v1"],  # the keys that differ, those that shape the observation first
+             ["env='observation [8]'", maps, "differs from it in env.features.local_map='none' ('occupancy' there)"]),
             (map_checkpoint, ["env=ttenv_v4"], ["env='observation [8], local_map [1, 28, 28]'", maps]),
             (map_checkpoint, ["env.features.local_map=occupancy_visits"], ["local_map [5, 8, 8]'", maps]),
-            (checkpoint, ["env=small2"], ["env='observation [14]'", features]),  # another number of targets
+            (checkpoint, ["env=small2"], ["env='observation [14]'", features, "env.num_targets=2 (1 there), "]),
             (map_checkpoint, ["env.num_targets=0"], ["env.num_targets=0: expected an integer >= 1"]),
     ):
         capsys.readouterr()
