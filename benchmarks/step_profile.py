@@ -19,7 +19,6 @@ also writes each mode's Chrome trace (open in chrome://tracing or Perfetto).
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import sys
 import tempfile
@@ -31,7 +30,7 @@ from population import ROWS, member_configs
 from torch.profiler import ProfilerActivity, profile
 
 from aia.logging.mcap_logger import git_state
-from aia.runtime.timing import synchronize
+from aia.runtime.timing import synchronize, utc_now
 from aia.training import train_population
 from aia.training.optimizer import Updater
 
@@ -128,7 +127,7 @@ def main() -> None:
         parser.error(f"--members {args.members}: expected an integer >= 1")
     out = args.out or HERE / "results" / f"step_profile_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"started_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    meta = {"started_utc": utc_now(),
             **git_state(HERE), "argv": sys.argv[1:], "torch": torch.__version__, "threads": torch.get_num_threads()}
     rows = []
     for mode in modes:

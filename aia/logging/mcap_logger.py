@@ -49,7 +49,6 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
-from datetime import datetime, timezone
 from importlib import metadata as package_metadata
 from pathlib import Path
 from typing import Any
@@ -68,6 +67,7 @@ from torchrl.record.loggers import Logger
 from aia.config.errors import RunFailed, WriteFailed, one_line, os_error_text
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA, flatten
+from aia.runtime.timing import utc_now
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 LOG_TOPIC = "/log"
@@ -330,7 +330,7 @@ def run_description(exp_name: str) -> dict[str, str]:
     """Who ran what where: package versions, git commit of the aia source, host, user, start time."""
     description = {
         "exp_name": exp_name,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "created": utc_now(),
         "host": socket.gethostname(),
         "user": getpass.getuser(),
         "python": platform.python_version(),

@@ -21,10 +21,10 @@ import os
 import socket
 import time
 from collections.abc import Iterator, Sequence
-from datetime import datetime, timezone
 from pathlib import Path
 
 from aia.config.errors import FolderLocked, WriteFailed, os_error_text
+from aia.runtime.timing import utc_now
 
 LOCK_NAME = "run.lock"
 _POLL_S = 0.5  # how often a waiting run looks at the lock again
@@ -32,7 +32,7 @@ _POLL_S = 0.5  # how often a waiting run looks at the lock again
 
 def _me() -> dict[str, object]:
     return {"host": socket.gethostname(), "pid": os.getpid(),
-            "since": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+            "since": utc_now()}
 
 
 def _holder(lock: Path) -> dict | None:
