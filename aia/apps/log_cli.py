@@ -223,8 +223,8 @@ def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[s
             raise ValueError(f"no {label or 'baseline'} run in {group} matches --where {list(where)} and has "
                              f"{metric!r}")
         if label is None:
-            policies = {str(run.config_value("policy")) for run in runs}
-            label = policies.pop() if len(policies) == 1 and "None" not in policies else "baseline"
+            policies = {run.config_value("policy") for run in runs}
+            label = str(policies.pop()) if len(policies) == 1 and None not in policies else "baseline"
         baselines.append((label, runs))
     return baselines
 

@@ -119,7 +119,8 @@ def check_known_keys(cfg: DictConfig | dict, schema: type, prefix: str = "") -> 
     fields = _fields(schema, prefix)
     for name, value in node.items():
         key = prefix + str(name)
-        require(name in fields, key, value, keys_allowed(list(fields), prefix[:-1], str(name)))
+        if name not in fields:  # the message only then: it matches the name against every key of the group
+            raise ConfigError(key, value, keys_allowed(list(fields), prefix[:-1], str(name)))
         child = fields[name]
         if isinstance(child, dict) and isinstance(value, dict):  # a group: its chosen option's schema
             child = child.get(str(value.get("name")))  # an unknown option: check_settings names it

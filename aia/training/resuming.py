@@ -21,7 +21,6 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from aia.config.checks import require
 from aia.config.composing import compose_config
 from aia.config.errors import ConfigError
 from aia.config.schemas import TrainConfig, keys_where
@@ -53,9 +52,10 @@ def resume_path(cfg: DictConfig, out_dir: Path) -> ResumeSource | None:
         log = cfg.logger.get("file")
         held = [path for path in (out_dir / CHECKPOINT_NAME, out_dir / PREVIOUS_CHECKPOINT_NAME,
                                   out_dir / str(log) if log else None) if path is not None and path.exists()]
-        require(not held, "resume", None, f"auto to continue the run in {out_dir} ({held[0] if held else ''} is "
-                "there), or another run folder (hydra.run.dir) for a fresh run: it would replace that run's "
-                "checkpoint and hide its log")
+        if held:
+            raise ConfigError("resume", None, f"auto to continue the run in {out_dir} ({held[0]} is there), or "
+                              "another run folder (hydra.run.dir) for a fresh run: it would replace that run's "
+                              "checkpoint and hide its log")
         return None
     if str(resume) != "auto":
         return ResumeSource(Path(str(resume)))
