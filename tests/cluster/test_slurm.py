@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import pickle
+import re
 import subprocess
 import time
 import uuid
@@ -95,11 +96,12 @@ def test_a_preempted_job_is_requeued_and_finishes_its_run_through_resume_auto(sl
 
 def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at_its_time_limit(slurm_cluster,
                                                                                                 tmp_path):
-    """``hydra/launcher=population_slurm``: two populations of two, one SLURM task each. SIGUSR1 to both tasks
-    once all four jobs are training (what ``--signal=USR1@<s>`` sends before the time limit): each population
+    """``hydra/launcher=population_slurm``: two populations of two, one SLURM task each. SIGUSR1 to each task
+    once its two jobs are training (what ``--signal=USR1@<s>`` sends before the time limit): each population
     stops at an episode's end with its checkpoints, its batch script requeues its task, and the task, run again
     (its 2-minute requeue delay cut short), continues with ``resume=auto`` to the end. The sweep succeeds with
-    every job's full history in its folder, in two log segments."""
+    every job's full history in its folder, in two log segments. The tasks are handled one by one, as each
+    trains: with another test's job on one of the node's two CPUs they run one after the other (seen twice)."""
     sweep_dir, frames, steps, name = tmp_path / "sweep", 1500, 50, f"aia-test-{uuid.uuid4().hex[:8]}"
     command = ["aia-train", "-m", "hydra/launcher=population_slurm", "hydra.launcher.cpus_per_task=1",
                "hydra.launcher.mem_gb=1", "hydra.launcher.timeout_min=10", "hydra.launcher.poll_every_s=1",
@@ -108,30 +110,35 @@ def test_population_slurm_runs_each_population_as_a_task_that_requeues_itself_at
                "logger.record_every_evaluations=0"]
     logs = [sweep_dir / str(job) / "run.mcap" for job in range(4)]
     deadline = time.monotonic() + slurm_cluster.sweep_timeout_s
-    # the two tasks must train side by side (both are signalled while they train): with another test's job on
-    # one of the node's two CPUs, the first task could finish before the second starts (seen once in a full run)
-    while _squeue_all():
-        assert time.monotonic() < deadline, f"the queue never emptied: {slurm_cluster.queue()}"
-        time.sleep(0.5)
-    sweep = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             env=slurm_cluster.env(), cwd=tmp_path)
+    printed = tmp_path / "sweep.out"  # the launcher's lines as they come: which task trains which jobs
+    with printed.open("w") as stdout:
+        sweep = subprocess.Popen(command, stdout=stdout, stderr=subprocess.PIPE, text=True, env=slurm_cluster.env(),
+                                 cwd=tmp_path)
 
-    def wait_until(done, what: str) -> None:
-        while not done():
+    def wait_for(find, what: str):
+        """``find()``'s first truthy value, polled until the deadline."""
+        while not (found := find()):
             assert time.monotonic() < deadline and sweep.poll() is None, f"{what}; squeue: {slurm_cluster.queue()}"
             time.sleep(0.5)
+        return found
+
+    def training_task(left: dict[str, list[int]]) -> str | None:
+        """A task of ``left`` that runs and whose jobs have each logged an evaluation."""
+        return next((task for task, jobs in left.items() if _task_state(task) == "RUNNING" and all(
+            logs[j].exists() and "eval/score" in read_run(logs[j]).scalar_topics() for j in jobs)), None)
 
     try:
-        wait_until(lambda: all(log.exists() and "eval/score" in read_run(log).scalar_topics() for log in logs),
-                   "not every job logged an evaluation")
-        tasks = _squeue(name).split()
-        assert len(tasks) == 2, tasks
-        for task in tasks:
+        wait_for(lambda: "submitted as SLURM job array" in printed.read_text(), "the array was not submitted")
+        left = _tasks_of_jobs(printed.read_text())
+        assert sorted(job for jobs in left.values() for job in jobs) == [0, 1, 2, 3], left
+        while left:
+            task = wait_for(lambda: training_task(left), "no task trained its jobs")
             subprocess.run(["scancel", "--signal=USR1", task], check=True, timeout=30)
-        wait_until(lambda: _squeue(name, "%T").split() == ["PENDING", "PENDING"], "the tasks were not requeued")
-        for task in tasks:
+            wait_for(lambda task=task: _task_state(task) == "PENDING", f"task {task} was not requeued")
             _start_now(task)
-        out, err = sweep.communicate(timeout=max(1.0, deadline - time.monotonic()))
+            del left[task]
+        _, err = sweep.communicate(timeout=max(1.0, deadline - time.monotonic()))
+        out = printed.read_text()
     finally:
         _end(sweep, name)
     assert sweep.returncode == 0, err[-3000:]
@@ -196,10 +203,23 @@ def _end(sweep: subprocess.Popen, name: str, settle_s: float = 30.0) -> None:
     subprocess.run(["scancel", f"--name={name}"], check=False, timeout=30)
 
 
-def _squeue_all() -> str:
-    """The ids of every queued job, whoever submitted it (empty when the queue is)."""
-    return subprocess.run(["squeue", "--noheader", "--format", "%i"], capture_output=True, text=True, check=True,
-                          timeout=30).stdout.strip()
+def _tasks_of_jobs(printed: str) -> dict[str, list[int]]:
+    """Each task of the array (``"12_0"``) and its population's job numbers, from the launcher's line
+    ``submitted as SLURM job array 12 (...): jobs 1, 3: task 12_0, jobs 0, 2: task 12_1; ...``."""
+    tasks = {}
+    for numbers, task in re.findall(r"jobs? ([0-9][0-9, -]*?): task (\d+_\d+)", printed):
+        jobs = []
+        for part in numbers.split(", "):
+            first, _, last = part.partition("-")
+            jobs.extend(range(int(first), int(last or first) + 1))
+        tasks[task] = jobs
+    return tasks
+
+
+def _task_state(task: str) -> str:
+    """The SLURM state of array task ``task`` (``RUNNING``, ``PENDING``, ...; empty once it left the queue)."""
+    return subprocess.run(["squeue", "--noheader", "--array", f"--jobs={task}", "--format", "%T"],
+                          capture_output=True, text=True, timeout=30).stdout.strip()
 
 
 def _squeue(name: str, field: str = "%i") -> str:
