@@ -13,11 +13,9 @@ the traceback of invalid input too.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import logging
 import os
-import re
 import sys
 from collections.abc import Callable, Sequence
 from importlib import resources
@@ -27,16 +25,14 @@ from typing import Any
 import hydra
 from hydra.errors import ConfigCompositionException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException, ValidationError
+from omegaconf.errors import OmegaConfBaseException
 
+from aia.config.composing import composition_error
 from aia.config.errors import ConfigError, RunFailed, one_line
-from aia.config.schemas import SCHEMAS, declared_check
-from aia.config.validation import keys_allowed, unknown_key_allowed
+from aia.config.schemas import SCHEMAS
 from aia.runtime.process_exit import freeze_at_exit
 
 COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
-# the override in Hydra's message on a key the config does not have (or a key under a value)
-_OVERRIDE_IN_MESSAGE = re.compile(r"(?:use \+|Error merging override )(?P<key>[^=\s]+)=(?P<value>.*)")
 DEBUG_FLAG = "--debug"
 QUIET_LIBRARIES = ("torchrl",)
 EXIT_USAGE = 2
@@ -122,6 +118,9 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
                 if debug:
                     raise
                 _exit_with(prog, err, EXIT_FAILURE)
+            except BrokenPipeError:  # stdout closed early (aia-train --help | head): end quietly
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+                raise SystemExit(EXIT_FAILURE) from None
             finally:
                 if previous is None:
                     os.environ.pop("HYDRA_FULL_ERROR", None)
@@ -134,29 +133,14 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
 
 
 def composition_message(err: Exception, schema: type) -> str:
-    """A command line Hydra could not compose, in one line. A value of the wrong type for a field of ``schema``
-    that declares a check is worded as the validation layer words a bad value (``frames='abc': expected an
-    integer >= 1``); a key the config does not have, with the keys it has there
-    (:func:`~aia.config.validation.unknown_key_allowed`; Hydra would suggest adding it with ``+``); otherwise
-    Hydra's message without its config search path, with the first line of its OmegaConf cause (what the value
-    should have been)."""
-    cause = err.__cause__
-    if isinstance(cause, ValidationError) and cause.full_key:
-        check = declared_check(schema, cause.full_key)
-        if check is not None:
-            return str(ConfigError(cause.full_key, cause.value, check.allowed))
-    override = _OVERRIDE_IN_MESSAGE.search(str(err))
-    if override and not override["key"].startswith("hydra."):
-        allowed = unknown_key_allowed(schema, override["key"])
-        owner = getattr(cause, "object_type", None)
-        if allowed is None and dataclasses.is_dataclass(owner):
-            parent, _, part = override["key"].rpartition(".")
-            names = [item.name for item in dataclasses.fields(owner)]
-            if part not in names:  # a key of another option of its group (algo=dqn has no sd_max)
-                allowed = keys_allowed(names, parent, part)
-        if allowed is not None:
-            return str(ConfigError(override["key"], override["value"], allowed))
+    """A command line Hydra could not compose, in one line: :func:`~aia.config.composing.composition_error` where
+    it names the key, otherwise Hydra's message without its config search path, with the first line of its
+    OmegaConf cause (what the value should have been)."""
+    error = composition_error(err, schema)
+    if error is not None:
+        return str(error)
     message = str(err).split("Config search path")[0]
+    cause = err.__cause__
     if isinstance(cause, OmegaConfBaseException) and cause.msg:
         message += f" ({cause.msg.splitlines()[0]})"
     return message

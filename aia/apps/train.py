@@ -19,6 +19,7 @@ from omegaconf import DictConfig
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.config.validation import validate_train_config
 from aia.evaluation import search_objective
+from aia.logging.segments import last_segment
 from aia.runtime.timing import PhaseTimer
 from aia.training import TrainingState, train_population
 from aia.training.checkpoint import CHECKPOINT_NAME
@@ -34,6 +35,7 @@ def main(cfg: DictConfig) -> float:
     choices = HydraConfig.get().runtime.choices
     print(f"training {cfg.algo.name} ({cfg.exploration.name}) on {choices.get('env')} for {cfg.frames} frames, "
           f"seed {cfg.seed}")
+    note_no_updates(cfg)
     with StopOnSignals() as stop:
         state = train_population([cfg], [out_dir], stop, validated=True)[0]
     report(cfg, out_dir, state)
@@ -50,6 +52,7 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
         learners = ", ".join(dict.fromkeys(f"{cfgs[i].algo.name} ({cfgs[i].exploration.name})" for i in valid))
         print(f"training {learners} on {first.env.map} with {first.env.num_targets} target(s) for {first.frames} "
               f"frames as a population of {len(valid)}, seeds {[cfgs[i].seed for i in valid]}")
+        note_no_updates(first)
         with StopOnSignals() as stop:
             states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop,
                                       validated=True)
@@ -58,6 +61,14 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
         return [search_objective(state.eval_scores) for state in states]
 
     return run_valid_jobs("aia-train", cfgs, lambda _, cfg: validate_train_config(cfg), train_valid)
+
+
+def note_no_updates(cfg: DictConfig) -> None:
+    """One line on stderr when the run ends before its first update (``frames < warmup_frames``): it plays
+    random actions and evaluates its initial network only."""
+    if cfg.frames < cfg.warmup_frames:
+        print(f"note: frames={cfg.frames} < warmup_frames={cfg.warmup_frames}: random actions only, no update "
+              "(lower warmup_frames or raise frames to learn)", file=sys.stderr)
 
 
 def exit_if_stopped(stop: StopOnSignals, out_dirs: Sequence[Path], state: TrainingState) -> None:
@@ -76,7 +87,12 @@ def report(cfg: DictConfig, out_dir: Path, state: TrainingState) -> None:
           f"last eval score {_last_score(state)}")
     print(f"time: {PhaseTimer(state.seconds).summary()}")
     log = _log_path(cfg, out_dir)
-    print(f"log written to {log}" + (f" (inspect: aia-log summary {log})" if log != out_dir else ""))
+    if log == out_dir:
+        print(f"log written to {log}")
+    else:
+        history = out_dir / cfg.logger.file
+        whole = " (the run's whole history" if log != history else " (inspect"
+        print(f"log written to {log}{whole}: aia-log summary {history})")
     print(f"checkpoint: {out_dir / CHECKPOINT_NAME}")
 
 
@@ -98,8 +114,9 @@ def _last_score(state: TrainingState) -> str:
 
 
 def _log_path(cfg: DictConfig, out_dir: Path) -> Path:
-    """The run's MCAP log (``logger=mcap``), else its folder."""
-    return out_dir / cfg.logger.file if cfg.logger.name == "mcap" else out_dir
+    """The run's MCAP log segment this run wrote (``logger=mcap``; ``run.1.mcap`` after a resume), else its
+    folder."""
+    return last_segment(out_dir / cfg.logger.file) if cfg.logger.name == "mcap" else out_dir
 
 
 if __name__ == "__main__":

@@ -1,13 +1,23 @@
-"""Composing a config of ``pkg://aia.conf`` from code, inside a running Hydra app or outside one."""
+"""Composing a config of ``pkg://aia.conf`` from code, inside a running Hydra app or outside one, and the one-line
+error of a command line (or a list of overrides) that Hydra could not compose."""
 
 from __future__ import annotations
 
+import dataclasses
+import re
 from collections.abc import Sequence
 from contextlib import nullcontext
 
 from hydra import compose, initialize_config_module
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig
+from omegaconf.errors import ValidationError
+
+from aia.config.errors import ConfigError
+from aia.config.schemas import declared_check
+
+# the override in Hydra's message on a key the config does not have (or a key under a value)
+_OVERRIDE_IN_MESSAGE = re.compile(r"(?:use \+|Error merging override )(?P<key>[^=\s]+)=(?P<value>.*)")
 
 
 def compose_config(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
@@ -18,3 +28,48 @@ def compose_config(config_name: str, overrides: Sequence[str] = ()) -> DictConfi
                else initialize_config_module(config_module="aia.conf", version_base="1.3"))
     with context:
         return compose(config_name=config_name, overrides=list(overrides))
+
+
+def composition_error(err: Exception, schema: type) -> ConfigError | None:
+    """The :class:`ConfigError` of an override Hydra could not compose into a config of ``schema`` (an app's, or
+    :class:`~aia.config.schemas.EnvSettingConfig`), where it names one: a value of the wrong type, worded as the
+    validation layer words a bad value where its field declares a check (``frames='abc': expected an integer
+    >= 1``), else by the field's type (``env.sensor.range='abc': expected a number``); a key the config does not
+    have, with the keys it has there (:func:`~aia.config.validation.unknown_key_allowed`; Hydra would suggest
+    adding it with ``+``). ``None`` otherwise."""
+    # imported here: the validation layer checks env configs through the env factory, which composes through
+    # this module
+    from aia.config.validation import keys_allowed, unknown_key_allowed
+
+    cause = err.__cause__
+    wrong_type = isinstance(cause, ValidationError) and bool(cause.full_key)
+    if wrong_type:
+        check = declared_check(schema, cause.full_key)
+        if check is not None:
+            return ConfigError(cause.full_key, cause.value, check.allowed)
+    override = _OVERRIDE_IN_MESSAGE.search(str(err))
+    if override and not override["key"].startswith("hydra."):
+        allowed = unknown_key_allowed(schema, override["key"])
+        owner = getattr(cause, "object_type", None)
+        if allowed is None and dataclasses.is_dataclass(owner):
+            parent, _, part = override["key"].rpartition(".")
+            names = [item.name for item in dataclasses.fields(owner)]
+            if part not in names:  # a key of another option of its group (algo=dqn has no sd_max)
+                allowed = keys_allowed(names, parent, part)
+        if allowed is not None:
+            return ConfigError(override["key"], override["value"], allowed)
+    return ConfigError(cause.full_key, cause.value, _type_wanted(cause)) if wrong_type else None
+
+# OmegaConf's words for a field's type in its conversion errors, and ours
+_TYPE_WORDS = {"Float": "a number", "Integer": "an integer", "Boolean": "true or false"}
+
+
+def _type_wanted(cause: ValidationError) -> str:
+    """What a field wants, from OmegaConf's error on a value of another type."""
+    message = cause.msg.splitlines()[0]
+    for word, wanted in _TYPE_WORDS.items():
+        if message.endswith(f"could not be converted to {word}"):
+            return wanted
+    if "is not a subclass of" in message:
+        return f"keys under {cause.full_key} ({cause.full_key}.<key>=<value>), not a value"
+    return f"a value of the field's type ({message})"

@@ -10,7 +10,7 @@ from typing import Any
 class ConfigError(ValueError):
     """An invalid input: the ``key`` (a dotted config key or a map field), its ``value`` and what is
     ``allowed``; ``source`` names the file the value came from, if any. ``str()`` is one line:
-    ``[source: ]key=value: expected allowed``. The apps print it and exit with status 2
+    ``[source: ]key=value: expected allowed`` (``None`` as ``null``). The apps print it and exit with status 2
     (:mod:`aia.apps.hydra_app`)."""
 
     def __init__(self, key: str, value: Any, allowed: str, source: str | None = None) -> None:
@@ -19,7 +19,8 @@ class ConfigError(ValueError):
 
     def __str__(self) -> str:
         where = f"{self.source}: " if self.source else ""
-        return " ".join(f"{where}{self.key}={self.value!r}: expected {self.allowed}".split())
+        value = "null" if self.value is None else repr(self.value)  # as a command line or a YAML file spells it
+        return " ".join(f"{where}{self.key}={value}: expected {self.allowed}".split())
 
 
 class RunFailed(RuntimeError):

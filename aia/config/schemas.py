@@ -196,8 +196,16 @@ class RolloutConfig:
     pursuit_standoff: Any = setting(check=PROBABILITY)
 
 
-# The apps' schemas by config name (conf/<name>.yaml).
-SCHEMAS: dict[str, type] = {"train": TrainConfig, "eval": EvalConfig, "rollout": RolloutConfig}
+@dataclass
+class EnvSettingConfig:
+    """``conf/env_setting.yaml``: one env preset, as :func:`aia.envs.load_env_config` composes it."""
+
+    env: Any = setting()
+
+
+# The schemas by config name (conf/<name>.yaml): the apps' and the env factory's.
+SCHEMAS: dict[str, type] = {"train": TrainConfig, "eval": EvalConfig, "rollout": RolloutConfig,
+                            "env_setting": EnvSettingConfig}
 
 
 def settings(schema: type, prefix: str = "") -> Iterator[tuple[str, dataclasses.Field]]:

@@ -271,7 +271,7 @@ def validate(cfg: TrackingConfig) -> None:
                 and 0 <= distance[0] <= distance[1], f"env.{name}", distance, "[min, max] with 0 <= min <= max")
     check_choice("env.belief.model", cfg.belief.model, (None, *BELIEF_MODELS))
     require(cfg.belief.filter != "kf" or belief_model_name(cfg) == "double_integrator", "env.belief.filter",
-            cfg.belief.filter, f"ukf with belief.model={belief_model_name(cfg)} (kf takes the linear "
+            cfg.belief.filter, f"ukf or particle with belief.model={belief_model_name(cfg)} (kf takes the linear "
             "double_integrator model only)")
     for name in ("robot.linear_speeds", "robot.angular_speeds"):
         speeds = list(_get(cfg, name))

@@ -14,8 +14,9 @@ from torchrl.envs import Compose
 
 import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's ConfigStore)
 from aia.config.checks import check_choice
-from aia.config.composing import compose_config
+from aia.config.composing import compose_config, composition_error
 from aia.config.errors import ConfigError, one_line
+from aia.config.schemas import SCHEMAS
 from aia.envs.config import TrackingConfig
 from aia.envs.sensing import Geometry
 from aia.envs.tracking import TargetTrackingEnv
@@ -30,13 +31,16 @@ def available_settings() -> list[str]:
 
 
 def load_env_config(setting: str = "empty1", overrides: Sequence[str] = ()) -> TrackingConfig:
-    """Compose the preset ``setting`` with Hydra-style ``overrides`` (``"sensor.range=12"``) into a config."""
+    """Compose the preset ``setting`` with Hydra-style ``overrides`` of its fields (``"sensor.range=12"``, or as
+    the apps write them, ``"env.sensor.range=12"``) into a config; a key the env does not have, or a value of the
+    wrong type, is a :class:`~aia.config.errors.ConfigError` naming it."""
     check_choice("env", setting, available_settings())
-    hydra_overrides = [f"env={setting}", *(f"env.{o}" for o in overrides)]
+    hydra_overrides = [f"env={setting}", *(f"env.{o.removeprefix('env.')}" for o in overrides)]
     try:
         cfg = compose_config("env_setting", hydra_overrides)
     except (HydraException, OmegaConfBaseException) as err:
-        raise ConfigError("overrides", list(overrides), f"overrides of env fields ({one_line(err)})") from None
+        error = composition_error(err, SCHEMAS["env_setting"])
+        raise error or ConfigError("overrides", list(overrides), f"overrides of env fields ({one_line(err)})") from None
     return to_tracking_config(cfg.env)
 
 

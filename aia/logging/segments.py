@@ -23,6 +23,11 @@ def later_segments(base: Path) -> list[Path]:
     return found
 
 
+def last_segment(base: Path) -> Path:
+    """The last segment of the log ``base`` that exists (``base`` itself when it has no later one)."""
+    return (later_segments(base) or [base])[-1]
+
+
 def next_segment(base: Path) -> Path:
     """Where a run logging to ``base`` writes: ``base`` itself if it does not exist, else the next segment."""
     if not base.exists():

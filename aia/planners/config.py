@@ -9,6 +9,8 @@ from typing import Optional
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from aia.config.errors import ConfigError
+
 
 @dataclass
 class ARVIConfig:
@@ -42,33 +44,51 @@ class ARVIConfig:
         validate(self)
 
 
+# What each parameter accepts, in the words of the apps' other refusals.
+ALLOWED = {
+    "horizon": "an integer >= 1", "replan_every": "an integer >= 1", "arc_checks": "an integer >= 1",
+    "delta0": "a number > 0", "delta_step": "a number > 0",
+    "eps": "a number >= 0 (inf: prune on distance alone)", "distance_offset": "a number >= 0",
+    "min_range": "a number >= 0 (metres)",
+    "time_budget": "a number >= 0 (seconds), or null", "max_passes": "an integer >= 0, or null",
+    "max_nodes": "an integer >= 0, or null",
+}
+
+
 def validate(cfg: ARVIConfig) -> None:
-    """Raise ``ValueError`` naming the first parameter outside its allowed range."""
-    for name in ("horizon", "replan_every", "arc_checks"):
+    """Raise :class:`~aia.config.errors.ConfigError` (a ``ValueError``) naming the first parameter outside its
+    allowed range, its value and what is allowed (:data:`ALLOWED`)."""
+    budgets = ("time_budget", "max_passes", "max_nodes")
+    for name in ALLOWED:
         value = getattr(cfg, name)
-        if not (isinstance(value, int) and value >= 1):
-            raise ValueError(f"planner.{name}={value!r} must be an integer >= 1")
-    for name in ("delta0", "delta_step"):
-        if not getattr(cfg, name) > 0:
-            raise ValueError(f"planner.{name}={getattr(cfg, name)!r} must be > 0")
-    for name in ("eps", "distance_offset", "min_range"):
-        if not getattr(cfg, name) >= 0:
-            raise ValueError(f"planner.{name}={getattr(cfg, name)!r} must be >= 0 (eps may be inf)")
+        if name in ("horizon", "replan_every", "arc_checks"):
+            valid = isinstance(value, int) and value >= 1
+        elif name in budgets:
+            valid = value is None or value >= 0
+        else:
+            valid = value > 0 if name in ("delta0", "delta_step") else value >= 0
+        if not valid:
+            raise ConfigError(f"planner.{name}", value, ALLOWED[name])
     if cfg.replan_every > cfg.horizon:
-        raise ValueError(f"planner.replan_every={cfg.replan_every} must be <= planner.horizon={cfg.horizon}")
-    budgets = {"time_budget": cfg.time_budget, "max_passes": cfg.max_passes, "max_nodes": cfg.max_nodes}
-    for name, value in budgets.items():
-        if value is not None and not value >= 0:
-            raise ValueError(f"planner.{name}={value!r} must be >= 0 or null")
-    if all(value is None for value in budgets.values()):
-        raise ValueError(f"planner: set at least one of {list(budgets)} (all are null: the search would not stop)")
+        raise ConfigError("planner.replan_every", cfg.replan_every,
+                          f"at most planner.horizon={cfg.horizon} (a plan is horizon steps long)")
+    if all(getattr(cfg, name) is None for name in budgets):
+        raise ConfigError("planner.time_budget", None,
+                          "a number >= 0 while max_passes and max_nodes are null (set at least one budget, or the "
+                          "search would not stop)")
 
 
-def to_arvi_config(cfg: DictConfig | ARVIConfig) -> ARVIConfig:
-    """A validated :class:`ARVIConfig` from a composed ``planner`` node (a misspelt field is named)."""
+def to_arvi_config(cfg: DictConfig | ARVIConfig | dict) -> ARVIConfig:
+    """A validated :class:`ARVIConfig` from a composed ``planner`` node; a misspelt field or a value of the wrong
+    type is a :class:`~aia.config.errors.ConfigError` naming the field."""
     if isinstance(cfg, ARVIConfig):
         return cfg
     try:
         return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(ARVIConfig), cfg))
     except OmegaConfBaseException as err:
-        raise ValueError(f"invalid planner config: {err}") from None
+        key = str(getattr(err, "key", None) or "")
+        given = OmegaConf.to_container(OmegaConf.create(cfg))
+        if key not in ALLOWED:
+            raise ConfigError(f"planner.{key}" if key else "planner", given.get(key, given),
+                              f"one of the planner's fields: {', '.join(ALLOWED)}") from None
+        raise ConfigError(f"planner.{key}", given[key], ALLOWED[key]) from None

@@ -4,7 +4,9 @@ in-process (``main()`` with ``sys.argv`` patched)."""
 
 from __future__ import annotations
 
+import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -71,7 +73,8 @@ TRAIN_CASES = [
     (["algo.sd_max=1"], ["algo.sd_max='1'", "algo's keys: name, loss_function"]),
     (["env=ttenv_v4", "env.features.local_map.im_size=0"],
      ["env.features.local_map.im_size='0'", "env.features.local_map is a value", "im_size"]),
-    (["env.sensor.range=abc"], ["env.sensor.range=abc", "Float"]),
+    (["env.sensor.range=abc"], ["env.sensor.range='abc': expected a number"]),
+    (["env.belief=3"], ["env.belief=3: expected keys under env.belief (env.belief.<key>=<value>), not a value"]),
 ]
 
 
@@ -122,7 +125,9 @@ def test_eval_rejects_bad_input_in_one_line(not_a_checkpoint, tmp_path, monkeypa
         (["policy=arvi", "episodes=0"], ["episodes=0", ">= 1"]),
         (["epsilon=1.5", "policy=arvi"], ["epsilon=1.5", "<= 1"]),
         (["policy=arvi", "device=cuda:7"], ["device='cuda:7'", "CUDA"]),
-        (["policy=arvi", "planner.horizon=0"], ["policy='arvi'", "planner.horizon=0"]),
+        (["policy=arvi", "planner.horizon=0"], ["planner.horizon=0: expected an integer >= 1"]),
+        (["policy=arvi", "planner.horizon=abc"], ["planner.horizon='abc': expected an integer >= 1"]),
+        (["policy=arvi", "planner.min_range=-2"], ["planner.min_range=-2.0: expected a number >= 0 (metres)"]),
         (["policy=arvi", "env.num_targets=0"], ["env.num_targets=0", ">= 1"]),
         (["policy=arvi", "planner=psychic"], ["planner/psychic", "arvi"]),
         (["policy=pursuit", "planner.horizon=3"], ["planner.horizon='3'", "policy=pursuit"]),
@@ -165,7 +170,9 @@ def test_rollout_rejects_bad_input_in_one_line(bad_map, tmp_path, monkeypatch, c
 def test_help_lists_only_what_can_be_set(tmp_path, monkeypatch, capsys):
     for main, groups, absent in ((train.main, ("env:", "algo:", "exploration:", "method:", "experiment:"),
                                   ("maps", "planner", "schema", "variant_2019")),
-                                 (rollout.main, ("env:",), ("maps", "planner", "algo:", "schema", "variant_2019"))):
+                                 (rollout.main, ("env:",), ("maps", "planner", "algo:", "schema", "variant_2019")),
+                                 (evaluate.main, ("env:", "planner: arvi", "hydra/launcher: local, population"),
+                                  ("maps", "algo:", "schema", "variant_2019"))):
         monkeypatch.setattr(sys, "argv", ["app", "--help"])
         with pytest.raises(SystemExit) as info:
             main()
@@ -173,3 +180,11 @@ def test_help_lists_only_what_can_be_set(tmp_path, monkeypatch, capsys):
         out = capsys.readouterr().out
         assert all(group in out for group in groups) and not any(word in out for word in absent), out
         assert "sensor:" in out and "exit" in out  # every field, and what invalid input does
+
+
+def test_help_into_a_closed_pipe_ends_without_a_traceback():
+    app = Path(sys.executable).with_name("aia-train")
+    process = subprocess.Popen([str(app), "--help"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()  # the reader is gone before the app writes (aia-train --help | head -0)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 1 and err == b""

@@ -95,3 +95,14 @@ def test_a_full_disk_ends_the_run_in_one_line_with_its_log_and_checkpoint_intact
     assert run.scalars("eval/score").frames.tolist() == [40, 80]
     assert torch.load(last, weights_only=False)["state"]["frames"] == 40
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["checkpoints", "last.pt", "run.mcap"]
+
+
+def test_a_run_that_ends_before_its_first_update_says_so(capsys):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        short, long = (compose(config_name="train", overrides=[f"frames={frames}", "warmup_frames=500"])
+                       for frames in (499, 500))
+    train_app.note_no_updates(short)
+    assert capsys.readouterr().err == ("note: frames=499 < warmup_frames=500: random actions only, no update (lower "
+                                       "warmup_frames or raise frames to learn)\n")
+    train_app.note_no_updates(long)  # frame 500 updates once
+    assert capsys.readouterr().err == ""

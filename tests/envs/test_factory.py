@@ -7,7 +7,7 @@ import pytest
 from aia.config.errors import ConfigError
 from aia.envs import make_env
 from aia.envs.config import TrackingConfig
-from aia.envs.factory import available_settings, to_tracking_config
+from aia.envs.factory import available_settings, load_env_config, to_tracking_config
 
 CASES = [
     ("nowhere", [], "env='nowhere'", "empty1"),
@@ -19,12 +19,15 @@ CASES = [
     ("empty1", ["target.init_distance=[5,1]"], "env.target.init_distance=[5.0, 1.0]", "min <= max"),
     ("empty1", ["robot.linear_speeds=[]"], "env.robot.linear_speeds=[]", "non-empty"),
     ("empty1", ["belief.init_offset_shape=ring"], "env.belief.init_offset_shape='ring'", "disk"),
-    ("empty1", ["sensr.range=3"], "overrides=['sensr.range=3']", "sensr"),
+    ("empty1", ["sensr.range=3"], "env.sensr.range='3'", "one of env's keys (did you mean env.sensor?)"),
+    ("empty1", ["env.sensor.rang=3"], "env.sensor.rang='3'", "(did you mean env.sensor.range?): range, fov_deg"),
+    ("empty1", ["sensor.range=far"], "env.sensor.range='far'", "expected a number"),
+    ("empty1", ["belief=3"], "env.belief=3", "keys under env.belief (env.belief.<key>=<value>), not a value"),
     ("empty1", ["map=/nonexistent/room.yaml"], "env.map='/nonexistent/room.yaml'", "does not exist"),
     ("empty1", ["belief.filter=pf2"], "env.belief.filter='pf2'", "'kf', 'ukf'"),
     ("empty1", ["target.model=teleport"], "env.target.model='teleport'", "'se2_sine'"),
     ("empty1", ["belief.model=bicycle"], "env.belief.model='bicycle'", "'se2_velocity'"),
-    ("ttenv_v2", ["belief.filter=kf"], "env.belief.filter='kf'", "ukf with belief.model=se2"),
+    ("ttenv_v2", ["belief.filter=kf"], "env.belief.filter='kf'", "ukf or particle with belief.model=se2"),
     ("empty1", ["belief.ukf_kappa=0"], "env.belief.ukf_kappa=0", "> 0"),
 ]
 
@@ -42,6 +45,12 @@ def test_a_bad_type_in_a_config_node_is_named():
         to_tracking_config({"sensor": {"range": "far"}})
     with pytest.raises(ConfigError, match="num_targets=1.5"):
         TrackingConfig(num_targets=1.5)
+
+
+def test_overrides_may_be_written_as_the_apps_write_them():
+    assert load_env_config("empty1", ["env.belief.det_cap=null", "sensor.range=12"]) == load_env_config(
+        "empty1", ["belief.det_cap=null", "env.sensor.range=12"])
+    assert load_env_config("empty1", ["env.belief.det_cap=null"]).belief.det_cap is None
 
 
 def test_internal_configs_are_not_settings():

@@ -237,7 +237,7 @@ RULES = [
     ("start outside", {"robot_start": [11.0, 1.0]}, "robot_start=[11.0, 1.0]", "inside [0, 10.0] x [0, 8.0]"),
     ("start occupied", {"robot_start": [2.0, 2.0], "boxes": [[1.0, 1.0, 3.0, 3.0]]}, "robot_start=[2.0, 2.0]",
      "free cell"),
-    ("no free cell", {"boxes": [[0.0, 0.0, 10.0, 8.0]]}, "robot_start=None", "free cell"),
+    ("no free cell", {"boxes": [[0.0, 0.0, 10.0, 8.0]]}, "robot_start=null", "free cell"),
 ]
 
 

@@ -236,7 +236,7 @@ def test_a_grown_sweep_resumes_its_old_jobs_and_starts_its_new_ones_as_populatio
     returns, out = _multirun(tmp_path, monkeypatch, capsys, "seed=0,1,2,3", "frames=160", exit_code=2)
     assert "population launcher: job 0: cannot start from " in out
     assert [r.status for r in returns] == [JobStatus.FAILED] * 3 + [JobStatus.COMPLETED]
-    assert "resume=None: expected auto to continue the run in" in str(returns[0]._return_value)
+    assert "resume=null: expected auto to continue the run in" in str(returns[0]._return_value)
     kept = torch.load(tmp_path / "sweep" / "0" / "checkpoints" / "last.pt", weights_only=False)
     assert kept["state"]["frames"] == 160  # the refused job's checkpoint as it was
 
@@ -256,7 +256,7 @@ def test_an_app_without_a_population_entry_is_named(tmp_path, monkeypatch, capsy
     with pytest.raises(SystemExit) as info:
         rollout_app.main()
     assert info.value.code == 2
-    assert "hydra.launcher.task=None: expected the dotted path of a population entry" in capsys.readouterr().err
+    assert "hydra.launcher.task=null: expected the dotted path of a population entry" in capsys.readouterr().err
     assert not (tmp_path / "0").exists()  # refused before any job was prepared
 
 

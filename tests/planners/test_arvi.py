@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 import torch
@@ -343,18 +344,19 @@ def test_min_range_keeps_the_robot_off_the_belief_mean():
 
 # -------------------------------------------------------------------------------------------- config
 def test_bad_parameters_are_named():
-    with pytest.raises(ValueError, match="planner.horizon=0"):
-        ARVIConfig(horizon=0)
-    with pytest.raises(ValueError, match="planner.replan_every=13 must be <= planner.horizon=12"):
-        ARVIConfig(replan_every=13)
-    with pytest.raises(ValueError, match="at least one of"):
-        ARVIConfig(time_budget=None)
-    with pytest.raises(ValueError, match="planner.eps=-1"):
-        ARVIConfig(eps=-1.0)
-    with pytest.raises(ValueError, match="planner.min_range=-0.5"):
-        ARVIConfig(min_range=-0.5)
-    with pytest.raises(ValueError, match="invalid planner config.*horizn"):
+    cases = [({"horizon": 0}, "planner.horizon=0: expected an integer >= 1"),
+             ({"replan_every": 13}, "planner.replan_every=13: expected at most planner.horizon=12"),
+             ({"time_budget": None}, "planner.time_budget=null: expected a number >= 0 while max_passes and max_nodes"),
+             ({"eps": -1.0}, "planner.eps=-1.0: expected a number >= 0 (inf: prune on distance alone)"),
+             ({"min_range": -0.5}, "planner.min_range=-0.5: expected a number >= 0 (metres)"),
+             ({"max_nodes": -3}, "planner.max_nodes=-3: expected an integer >= 0, or null")]
+    for fields, words in cases:
+        with pytest.raises(ConfigError, match=re.escape(words)):
+            ARVIConfig(**fields)
+    with pytest.raises(ConfigError, match=re.escape("planner.horizn=3: expected one of the planner's fields: ")):
         to_arvi_config({"horizn": 3})
+    with pytest.raises(ConfigError, match=re.escape("planner.delta0='wide': expected a number > 0")):
+        to_arvi_config({"delta0": "wide"})
     assert to_arvi_config({"horizon": 6, "eps": "inf"}) == ARVIConfig(horizon=6)
 
 

@@ -14,6 +14,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_module
 
+from aia.apps.train import report
 from aia.config.errors import ConfigError
 from aia.logging import find_runs, read_run
 from aia.training import train
@@ -47,7 +48,7 @@ class SignalAfter(StopOnSignals):
         pass
 
 
-def test_a_signal_ends_the_episode_then_checkpoints_and_resume_auto_continues_one_history(tmp_path):
+def test_a_signal_ends_the_episode_then_checkpoints_and_resume_auto_continues_one_history(tmp_path, capsys):
     whole = train(_config(*LOGGED, "frames=240"), tmp_path / "whole")
     stopped = train(_config(*LOGGED, "frames=240"), tmp_path / "run", stop=SignalAfter(130))
     assert stopped.frames == 160  # the episode under way at the signal (frames 121-160) was finished
@@ -62,6 +63,11 @@ def test_a_signal_ends_the_episode_then_checkpoints_and_resume_auto_continues_on
         whole.frames, whole.updates, whole.episodes, whole.evaluations)
     assert resumed.eval_scores == pytest.approx(whole.eval_scores, rel=1e-5)
     assert (tmp_path / "run" / "run.1.mcap").is_file()
+    capsys.readouterr()
+    report(_config(*LOGGED, "frames=240", "resume=auto"), tmp_path / "run", resumed)  # what aia-train prints
+    run = tmp_path / "run"
+    assert f"log written to {run / 'run.1.mcap'} (the run's whole history: aia-log summary {run / 'run.mcap'})" in (
+        capsys.readouterr().out)
     joined, alone = read_run(tmp_path / "run" / "run.mcap"), read_run(tmp_path / "whole" / "run.mcap")
     assert joined.complete and joined.failure is None and len(joined.segments) == 1
     for topic in ("eval/score", "train/score"):
@@ -110,7 +116,7 @@ def test_resume_point_is_where_a_run_continues_without_loading_it_for_training(t
         120, 21, 3, 3)
     # no resume asked for, over a run: that job fails alone (resume_path's refusal)
     assert resume_point(cfg, tmp_path / "a") == str(tmp_path / "a" / "checkpoints" / "last.pt")
-    with pytest.raises(ConfigError, match=r"^resume=None: expected auto to continue the run in .*last.pt is there"):
+    with pytest.raises(ConfigError, match=r"^resume=null: expected auto to continue the run in .*last.pt is there"):
         train(cfg, tmp_path / "a")
     assert resume_point(auto, tmp_path / "a")[0] == 120  # its checkpoint is as it was
     broken = tmp_path / "broken.pt"
@@ -121,7 +127,7 @@ def test_resume_point_is_where_a_run_continues_without_loading_it_for_training(t
 def test_a_fresh_run_over_a_run_log_alone_is_refused_and_the_log_kept(tmp_path):
     # a run killed before its first checkpoint leaves its log only; resume=auto continues it as a fresh start
     (tmp_path / "run.mcap").write_bytes(b"an earlier run's log")
-    with pytest.raises(ConfigError, match=r"^resume=None: expected auto .*run.mcap is there"):
+    with pytest.raises(ConfigError, match=r"^resume=null: expected auto .*run.mcap is there"):
         resume_path(_config(*SMALL), tmp_path)
     assert resume_path(_config(*SMALL, "resume=auto"), tmp_path) is None
     assert resume_path(_config(*SMALL, "logger=csv"), tmp_path) is None  # no run log of that name
