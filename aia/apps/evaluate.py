@@ -261,7 +261,7 @@ def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[
     def validate(k: int, cfg: DictConfig) -> None:
         settings[k] = _validate(cfg, _job_overrides(out_dirs[k]), Path(out_dirs[k]))
 
-    return run_valid_jobs("aia-eval", cfgs, validate,
+    return run_valid_jobs(cfgs, validate,
                           lambda valid: run_jobs([cfgs[i] for i in valid], [Path(out_dirs[i]) for i in valid],
                                                  [settings[i] for i in valid]))
 

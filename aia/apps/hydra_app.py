@@ -49,11 +49,12 @@ def group_options(group: str) -> str:
 OmegaConf.register_new_resolver("aia.options", group_options, replace=True)
 
 
-def run_valid_jobs(prog: str, cfgs: Sequence[DictConfig], validate: Callable[[int, DictConfig], None],
+def run_valid_jobs(cfgs: Sequence[DictConfig], validate: Callable[[int, DictConfig], None],
                    run: Callable[[list[int]], Sequence[Any]]) -> list[Any]:
     """A population entry's results, one per job in order: a job whose config ``validate(k, cfg)`` refuses
-    (a :class:`ConfigError`) fails alone with its one line, ``<prog>: error: job k: ...``; ``run`` gets the
-    valid jobs' indices (none: not called) and returns their results in that order."""
+    (a :class:`ConfigError`) fails alone, its error its result (the launcher reports it under the job's number
+    in the sweep); ``run`` gets the valid jobs' indices (none: not called) and returns their results in that
+    order."""
     outcomes: dict[int, Any] = {}
     valid = []
     for index, cfg in enumerate(cfgs):
@@ -61,7 +62,6 @@ def run_valid_jobs(prog: str, cfgs: Sequence[DictConfig], validate: Callable[[in
             validate(index, cfg)
             valid.append(index)
         except ConfigError as err:
-            print(f"{prog}: error: job {index}: {err}", file=sys.stderr)
             outcomes[index] = err
     if valid:
         outcomes.update(zip(valid, run(valid), strict=True))

@@ -208,6 +208,9 @@ def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[s
     label, the baseline is named by the ``policy`` its runs share (``aia-eval``'s: arvi, pursuit), else
     "baseline"."""
     if not paths:
+        if labels:
+            raise ValueError(f"--baseline-label {labels[0]!r} without --baseline: name the baseline's runs with "
+                             "--baseline (a folder, file or glob of run logs)")
         return []
     if len(labels) <= 1:
         groups = [(labels[0] if labels else None, list(paths))]
@@ -310,6 +313,20 @@ def _read_all(patterns: Sequence[str]) -> list[RunLog]:
     return runs
 
 
+def runs_with_metric(patterns: Sequence[str], where: Sequence[str], metric: str) -> list[RunLog]:
+    """The runs of ``patterns`` that match every ``--where`` and have logged ``metric``; a ValueError when none
+    matches, or when none has ``metric`` (naming the scalar topics they have), and a warning for each run left out
+    for lack of it while others have it (a run just started)."""
+    runs = select_runs(_read_all(patterns), where)
+    if not runs:
+        raise ValueError(f"no run of {list(patterns)} matches --where {' '.join(where)}")
+    if not any(metric in run.scalar_topics() for run in runs):
+        topics = sorted({topic for run in runs for topic in run.scalar_topics()})
+        raise ValueError(f"--metric {metric!r}: no run has logged it; expected a scalar topic of the runs: "
+                         f"{', '.join(topics) or 'none yet'}")
+    return _with_metric(runs, metric)
+
+
 def _with_metric(runs: Sequence[RunLog], metric: str) -> list[RunLog]:
     """The runs that have logged ``metric``; a warning names each one left out (e.g. a run just started)."""
     kept = []
@@ -401,7 +418,7 @@ def make_parser() -> argparse.ArgumentParser:
                      help="config key to group runs by, e.g. algo or env.num_targets (repeatable)")
     cmd.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
                      help="keep only runs whose config has this value, e.g. env.num_targets=2 (repeatable)")
-    cmd.add_argument("--window", type=int, default=1, help="moving-average window per run (paper: 4)")
+    cmd.add_argument("--window", type=int, default=1, help="moving-average window per run (default 1; paper: 4)")
     cmd.add_argument("--x", dest="x_axis", choices=X_AXES, default="frame",
                      help="x axis: training frames (default), training episodes (the paper's) or evaluation index")
     cmd.add_argument("--baseline", action="append", default=[], metavar="RUNS",
@@ -476,9 +493,7 @@ def run_command(args: argparse.Namespace) -> None:
         if args.out.suffix.lower() != ".png":
             raise ValueError(f"--out {args.out}: plot writes a .png file")
         bootstrap = stats_config(args) if args.ci == "bootstrap" else None
-        runs = _with_metric(select_runs(_read_all(args.runs), args.where), args.metric)
-        if not runs:
-            raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
+        runs = runs_with_metric(args.runs, args.where, args.metric)
         check_group_keys(runs, args.group_by)
         baseline_groups = baseline_runs(args.baseline, args.baseline_label, args.where, args.metric)
         curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title,
@@ -494,9 +509,7 @@ def run_command(args: argparse.Namespace) -> None:
         config = stats_config(args)
         if args.window < 1:
             raise ValueError(f"--window={args.window} must be >= 1")
-        runs = _with_metric(select_runs(_read_all(args.runs), args.where), args.metric)
-        if not runs:
-            raise ValueError(f"no run matches --where {args.where} and has {args.metric!r}")
+        runs = runs_with_metric(args.runs, args.where, args.metric)
         check_group_keys(runs, args.group_by)
         baselines = baseline_runs(args.baseline, args.baseline_label, args.where, args.metric)
         lower_better = lower_is_better(args.metric) if args.better is None else args.better == "lower"

@@ -23,6 +23,7 @@ from aia.logging.segments import last_segment
 from aia.runtime.timing import PhaseTimer
 from aia.training import TrainingState, train_population
 from aia.training.checkpoint import CHECKPOINT_NAME
+from aia.training.resuming import resume_path
 from aia.training.stopping import StopOnSignals
 
 
@@ -30,8 +31,8 @@ from aia.training.stopping import StopOnSignals
 def main(cfg: DictConfig) -> float:
     """Entry point of ``aia-train``; returns the run's search objective (:func:`~aia.evaluation.search_objective`).
     The config is validated before anything is printed or written."""
-    validate_train_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
+    validate_job(cfg, out_dir)
     choices = HydraConfig.get().runtime.choices
     print(f"training {cfg.algo.name} ({cfg.exploration.name}) on {choices.get('env')} for {cfg.frames} frames, "
           f"seed {cfg.seed}")
@@ -56,11 +57,19 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
         with StopOnSignals() as stop:
             states = train_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], stop,
                                       validated=True)
-        report_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], states)
+        report_population([cfgs[i] for i in valid], [out_dirs[i] for i in valid], states, bool(stop.signal))
         exit_if_stopped(stop, [out_dirs[i] for i in valid], states[0])
         return [search_objective(state.eval_scores) for state in states]
 
-    return run_valid_jobs("aia-train", cfgs, lambda _, cfg: validate_train_config(cfg), train_valid)
+    return run_valid_jobs(cfgs, lambda k, cfg: validate_job(cfg, Path(out_dirs[k])), train_valid)
+
+
+def validate_job(cfg: DictConfig, out_dir: Path) -> None:
+    """The config (:func:`~aia.config.validation.validate_train_config`) and its run folder: a fresh run into a
+    folder that holds a run, or ``resume=auto`` over damaged checkpoints only, is refused here, before the run
+    prints anything (:func:`~aia.training.resuming.resume_path`)."""
+    validate_train_config(cfg)
+    resume_path(cfg, out_dir)
 
 
 def note_no_updates(cfg: DictConfig) -> None:
@@ -87,25 +96,28 @@ def report(cfg: DictConfig, out_dir: Path, state: TrainingState) -> None:
           f"last eval score {_last_score(state)}")
     print(f"time: {PhaseTimer(state.seconds).summary()}")
     log = _log_path(cfg, out_dir)
-    if log == out_dir:
-        print(f"log written to {log}")
-    else:
+    if cfg.logger.name == "mcap":
         history = out_dir / cfg.logger.file
         whole = " (the run's whole history" if log != history else " (inspect"
         print(f"log written to {log}{whole}: aia-log summary {history})")
+    elif log is not None:
+        print(f"log written to {log}")
     print(f"checkpoint: {out_dir / CHECKPOINT_NAME}")
 
 
-def report_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], states: Sequence[TrainingState]
-                      ) -> None:
-    """What a finished population prints: the counters and time split its members share, once, then a line
-    per member (its learner, seed, learning rate, last score and log); checkpoints lie in each job folder."""
+def report_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], states: Sequence[TrainingState],
+                      stopped: bool = False) -> None:
+    """What a finished (or ``stopped``) population prints: the counters and time split its members share, once,
+    then a line per member (its learner, seed, learning rate, last score and log); checkpoints lie in each job
+    folder."""
     shared = states[0]
-    print(f"population of {len(states)} trained: {shared.frames} frames, {shared.episodes} episodes, "
+    ended = "stopped at" if stopped else "trained:"
+    print(f"population of {len(states)} {ended} {shared.frames} frames, {shared.episodes} episodes, "
           f"{shared.updates} updates each; time: {PhaseTimer(shared.seconds).summary()}")
     for cfg, out_dir, state in zip(cfgs, out_dirs, states, strict=True):
+        log = _log_path(cfg, out_dir)
         print(f"  {cfg.algo.name} ({cfg.exploration.name}) seed {cfg.seed} lr {cfg.lr:g}: last eval score "
-              f"{_last_score(state)}, log {_log_path(cfg, out_dir)}")
+              f"{_last_score(state)}, " + (f"log {log}" if log is not None else "no log (logger=none)"))
     print(f"each member's checkpoint: {CHECKPOINT_NAME} in its folder; inspect a log: aia-log summary <log>")
 
 
@@ -113,9 +125,11 @@ def _last_score(state: TrainingState) -> str:
     return f"{state.eval_scores[-1]:.1f}" if state.eval_scores else "n/a"
 
 
-def _log_path(cfg: DictConfig, out_dir: Path) -> Path:
-    """The run's MCAP log segment this run wrote (``logger=mcap``; ``run.1.mcap`` after a resume), else its
-    folder."""
+def _log_path(cfg: DictConfig, out_dir: Path) -> Path | None:
+    """The run's MCAP log segment this run wrote (``logger=mcap``; ``run.1.mcap`` after a resume), its folder
+    (``logger=csv``: the curves' CSV files), or ``None`` (``logger=none``)."""
+    if cfg.logger.name == "none":
+        return None
     return last_segment(out_dir / cfg.logger.file) if cfg.logger.name == "mcap" else out_dir
 
 

@@ -51,11 +51,12 @@ def log_score_summary(logger: Logger, summary: dict, frame: int) -> None:
         logger.log_scalar("eval/belief_error", summary["belief_error"], step=frame)
 
 
-def search_objective(eval_scores: Sequence[float]) -> float:
+def search_objective(eval_scores: Sequence[float]) -> float | None:
     """What an ``aia-train`` run returns to a Hydra sweeper (optuna search: ``hydra/sweeper=``): the mean of the
     last 10 % of ``eval_scores`` (at least one), the level the policy has reached at the end of training, less
     noisy than the final evaluation alone and the same "end of training" level that ``aia-log plot`` tables
     report (:func:`aia.logging.curves.tail_mean`). Higher is better, so a search maximises it
-    (``hydra/sweeper=paper_search``). NaN for a run that never evaluated, which optuna records as a failed trial
-    rather than a score."""
-    return tail_mean(list(eval_scores))
+    (``hydra/sweeper=paper_search``). ``None`` for a run that never evaluated: the optuna sweeper records it as a
+    failed trial and goes on (NaN made hydra-optuna-sweeper 1.3.0 with optuna 2.10 end the search with a
+    traceback: optuna fails the trial, and the sweeper then tells it again with its value)."""
+    return tail_mean(list(eval_scores)) if len(eval_scores) else None

@@ -26,7 +26,7 @@ import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, DataEnd, Metadata, Schema
+from mcap.records import Attachment, Channel, Metadata, Schema
 from mcap.stream_reader import CRCValidationError
 
 from aia.logging import schemas
@@ -198,6 +198,8 @@ def read_run(path: str | Path) -> RunLog:
 
 def _read_file(path: Path) -> RunLog:
     """Read every message, metadata record and attachment of the MCAP file at ``path``."""
+    if path.is_dir():
+        raise RunLogError(f"{path}: a folder, expected a run log file (e.g. {path / 'run.mcap'})")
     if not path.is_file():
         raise RunLogError(f"{path}: no such file")
     try:
@@ -221,11 +223,6 @@ def _read_records(path: Path, data: bytes) -> RunLog:
         if not data.startswith(_MAGIC):
             raise EndOfFile() if len(data) < len(_MAGIC) else InvalidMagic(tuple(data[:len(_MAGIC)]))
         walk.top_level(data, len(_MAGIC))
-    except CRCValidationError:  # the data section's, checked at its end (it covers the chunks too)
-        if not run.damage:
-            run.damage.append("the data section fails its CRC-32 check: a record outside the chunks (a schema, "
-                              "channel, metadata or attachment) is damaged")
-        run.complete = True  # read to the end of its data (the summary after it only indexes the data)
     except InvalidMagic:
         if not run.messages and not run.metadata:
             raise RunLogError(f"{path}: not an MCAP file (bad magic bytes)") from None
@@ -235,6 +232,7 @@ def _read_records(path: Path, data: bytes) -> RunLog:
             raise RunLogError(f"{path}: not a readable MCAP file ({type(err).__name__})") from None
         # a run that has only just started has its magic bytes (and header) but nothing else yet
         run.problem = f"file ends early or is damaged ({type(err).__name__})"
+    walk.resolve()
     run.messages.sort(key=lambda m: m.log_time)
     return run
 
@@ -255,10 +253,25 @@ class _RecordWalk:
         self.schema_names: dict[int, str] = {}
         self.channels: dict[int, tuple[str, str]] = {}  # channel id -> (topic, schema name)
         self.chunks = 0
+        # A damaged chunk takes the schemas and channels first written in it along: the channels whose schema is
+        # not known yet, and the messages of channels not known yet, wait for the copies in the summary section.
+        self.unresolved_channels: dict[int, tuple[str, int]] = {}  # channel id -> (topic, schema id)
+        self.pending: list[tuple[int, int, bytes]] = []  # (channel id, log time, payload)
+
+    def resolve(self) -> None:
+        """Add the waiting messages whose channel (and its schema) the rest of the file defined."""
+        for channel_id, (topic, schema_id) in self.unresolved_channels.items():
+            if schema_id in self.schema_names:
+                self.channels.setdefault(channel_id, (topic, self.schema_names[schema_id]))
+        for channel_id, log_time, payload in self.pending:
+            channel = self.channels.get(channel_id)
+            if channel is not None:
+                self.run.messages.append(LoggedMessage(channel[0], channel[1], log_time, payload))
+        self.pending.clear()
 
     def top_level(self, data: bytes, position: int) -> None:
         """The records from ``position`` to the footer and the magic bytes after it (EndOfFile when cut short,
-        CRCValidationError for a data section that fails its CRC, InvalidMagic for bad closing magic)."""
+        InvalidMagic for bad closing magic); a data section that fails its CRC is described in the run's damage."""
         run = self.run
         while True:
             opcode, body, end = _record(data, position)
@@ -275,8 +288,10 @@ class _RecordWalk:
             elif opcode == Opcode.DATA_END:
                 (crc,) = _DATA_END.unpack_from(data, body)
                 actual = zlib.crc32(memoryview(data)[:position]) if crc != 0 else 0
-                if actual != crc:
-                    raise CRCValidationError(expected=crc, actual=actual, record=DataEnd(crc))
+                if actual != crc and not run.damage:  # (a damaged chunk fails it too, and is named already)
+                    run.damage.append("the data section fails its CRC-32 check: a record outside the chunks (a "
+                                      "schema, channel, metadata or attachment) is damaged")
+                # on to the summary section: its schemas and channels repeat those of the data section
             elif opcode == Opcode.FOOTER:
                 run.complete = True
                 if data[end:end + len(_MAGIC)] != _MAGIC:
@@ -315,6 +330,8 @@ class _RecordWalk:
         channel = self.channels.get(channel_id)
         if channel is not None:
             into.append(LoggedMessage(channel[0], channel[1], log_time, data[body + _MESSAGE_HEAD.size:end]))
+        else:
+            self.pending.append((channel_id, log_time, data[body + _MESSAGE_HEAD.size:end]))
 
     def _definition(self, opcode: int, data: bytes, body: int, end: int) -> None:
         """A schema or a channel (other records, indexes and statistics, carry nothing a run log keeps)."""
@@ -323,7 +340,10 @@ class _RecordWalk:
             self.schema_names[schema.id] = schema.name
         elif opcode == Opcode.CHANNEL:
             channel = Channel.read(_stream(data, body, end))
-            self.channels[channel.id] = (channel.topic, self.schema_names.get(channel.schema_id, ""))
+            if channel.schema_id == 0 or channel.schema_id in self.schema_names:
+                self.channels[channel.id] = (channel.topic, self.schema_names.get(channel.schema_id, ""))
+            else:
+                self.unresolved_channels[channel.id] = (channel.topic, channel.schema_id)
 
 
 def _record(data: bytes, position: int) -> tuple[int, int, int]:

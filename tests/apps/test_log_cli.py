@@ -118,7 +118,7 @@ def test_plot_leaves_out_runs_without_the_metric(tmp_path, capsys):
     assert "m/1/run.mcap: no 'eval/score' yet, left out" in captured.err
     assert "m/2/run.mcap: no 'eval/score' yet, left out" in captured.err
     assert main(["plot", str(tmp_path / "m/1"), "--out", str(tmp_path / "c.png")]) == 2
-    assert "has 'eval/score'" in capsys.readouterr().err
+    assert "--metric 'eval/score': no run has logged it; expected a scalar topic" in capsys.readouterr().err
 
 
 def test_plot_with_a_baseline_filters_and_the_episode_axis(tmp_path, capsys):
@@ -318,7 +318,11 @@ def test_stats_refuses_a_bad_group_key_too_few_runs_and_bad_options_in_one_line(
             (["--statistic", "median"], "argument --statistic: invalid choice: 'median' (choose from 'iqm', 'mean')"),
             (["--verdict-by", "ci"], "invalid choice: 'ci' (choose from 'poi', 'difference')"),
             (["--ci-level", "95"], "--ci-level 95.0: expected a number in (0, 1), e.g. 0.95"),
-            (["--reps", "x"], "argument --reps: invalid int value: 'x'")):
+            (["--reps", "x"], "argument --reps: invalid int value: 'x'"),
+            (["--baseline-label", "ARVI"], "--baseline-label 'ARVI' without --baseline: name the baseline's runs"),
+            (["--metric", "eval/nope"], "--metric 'eval/nope': no run has logged it; expected a scalar topic of the "
+                                        "runs: eval/score"),
+            (["--where", "seed=7"], "matches --where seed=7")):
         assert main(["stats", runs, *arguments]) == 2, arguments
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err and err.startswith("aia-log"), err

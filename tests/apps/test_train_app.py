@@ -15,6 +15,7 @@ from hydra import compose, initialize_config_module
 import aia.training.checkpoint_files as checkpoint_files
 from aia.apps import train as train_app
 from aia.logging import read_run
+from aia.training import TrainingState
 
 
 def test_local_sweep_runs_every_job(tmp_path):
@@ -106,3 +107,18 @@ def test_a_run_that_ends_before_its_first_update_says_so(capsys):
                                        "warmup_frames or raise frames to learn)\n")
     train_app.note_no_updates(long)  # frame 500 updates once
     assert capsys.readouterr().err == ""
+
+
+def test_the_report_names_no_log_without_a_logger_and_a_stopped_population_as_stopped(tmp_path, capsys):
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        silent, logged = (compose(config_name="train", overrides=[f"logger={name}"]) for name in ("none", "mcap"))
+    state = TrainingState(frames=400, updates=10, episodes=4, evaluations=1, eval_scores=[-12.5],
+                          seconds={"collect": 1.0})
+    train_app.report(silent, tmp_path, state)
+    out = capsys.readouterr().out
+    assert "log written" not in out and f"checkpoint: {tmp_path / 'checkpoints' / 'last.pt'}" in out
+    train_app.report_population([silent, logged], [tmp_path / "0", tmp_path / "1"], [state, state], stopped=True)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("population of 2 stopped at 400 frames, 4 episodes, 10 updates each")
+    assert lines[1].endswith("last eval score -12.5, no log (logger=none)")
+    assert lines[2].endswith(f"last eval score -12.5, log {tmp_path / '1' / 'run.mcap'}")

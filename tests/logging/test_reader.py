@@ -68,6 +68,21 @@ def test_a_flipped_byte_in_a_chunk_fails_its_crc_and_is_read_around(tmp_path, of
     assert run.scalars("eval/score").values.tolist() == [float(i) for i in range(240) if not 40 <= i < 80]
 
 
+def test_a_damaged_first_chunk_loses_only_its_own_messages(tmp_path):
+    # the first chunk also holds the schema and channel records: the later chunks' messages are read through the
+    # summary section's copies
+    data, sizes = _chunked_log(tmp_path, compression="none")
+    damaged = bytearray(data)
+    first_chunk = data.index(b"eval/score")  # the channel record, inside the first chunk
+    damaged[first_chunk + 200] ^= 0x01
+    (tmp_path / "bad.mcap").write_bytes(bytes(damaged))
+    run = read_run(tmp_path / "bad.mcap")
+    assert run.complete and len(run.damage) == 1 and run.damage[0].startswith("chunk 1 (logged ")
+    scores = run.scalars("eval/score")
+    assert scores.values.tolist() == [float(i) for i in range(40, 240)]
+    assert {m.schema for m in run.messages} == {"aia.Scalar"}
+
+
 def test_a_damaged_record_outside_the_chunks_fails_the_data_crc(tmp_path):
     data, _ = _chunked_log(tmp_path)
     damaged = bytearray(data)
@@ -92,6 +107,8 @@ def test_files_that_are_not_logs(tmp_path):
     assert not started.complete and "ends early" in started.problem and started.messages == []
     with pytest.raises(RunLogError, match="no such file"):
         read_run(tmp_path / "missing.mcap")
+    with pytest.raises(RunLogError, match=f"{tmp_path}: a folder, expected a run log file"):
+        read_run(tmp_path)
 
 
 def test_find_runs_expands_folders_and_globs(tmp_path):
