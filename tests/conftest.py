@@ -88,6 +88,20 @@ def pytest_unconfigure(config: pytest.Config) -> None:
         script("stop", timeout=120)
 
 
+# The modules of the suite's longest tests (the tiny protocol, the SLURM jobs, the launcher's signals, training
+# runs: 10-50 s each), which the workers take first: started last, one of them would leave the other worker idle.
+FIRST_MODULES = ("tests/scripts/test_reproduce.py", "tests/cluster/test_slurm.py", "tests/apps/test_search.py",
+                 "tests/hydra_plugins/test_population_launcher.py", "tests/training/test_target_cache.py",
+                 "tests/training/test_loop.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The tests of :data:`FIRST_MODULES` first (in that order), then the others as collected (the workers hand
+    out tests in this order)."""
+    rank = {module: k for k, module in enumerate(FIRST_MODULES)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
+
+
 @pytest.fixture(scope="session", autouse=True)
 def kernel_cache_made() -> None:
     """In a worker, before its first test: wait until the controller has made the kernels' cache."""
