@@ -460,7 +460,8 @@ def make_parser() -> argparse.ArgumentParser:
     cmd = commands.add_parser("render", help="a recorded episode as a GIF or a PNG strip of frames")
     cmd.add_argument("run", help="one MCAP file")
     cmd.add_argument("--episode", default="last", help="recorded episode index, 'first' or 'last' (default)")
-    cmd.add_argument("--out", type=Path, default=Path("episode.gif"), help="episode.gif or a .png strip")
+    cmd.add_argument("--out", type=Path, default=Path("episode.gif"),
+                     help="a .gif, or a .png strip of --frames frames (default: episode.gif here)")
     cmd.add_argument("--size", type=int, default=384, help="pixels per frame side (default: 384)")
     cmd.add_argument("--frames", type=int, default=6, help="frames in a PNG strip (default: 6)")
     cmd.add_argument("--fps", type=float, default=10.0, help="GIF frame rate (default: 10)")

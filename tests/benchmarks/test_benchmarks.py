@@ -39,6 +39,8 @@ def test_a_benchmark_imports_and_prints_its_help(name, monkeypatch, capsys):
     ("env_throughput", ["--batch-sizes", "16", "0"], ["--batch-sizes 0: expected integers >= 1"]),
     ("map_generation", ["--batch-size", "0"], ["--batch-size 0: expected an integer >= 1"]),
     ("arvi", ["--quality-setting", "bar"], ["--quality-setting 'bar'", "empty1"]),
+    ("arvi", ["--only", "throughput", "--baseline-commit", "no-such-commit"],
+     ["--baseline-commit no-such-commit: git has no aia/planners/arvi.py there"]),
     ("population", ["--algos", "dqn,foo"], ["--algos 'dqn,foo'", "dqn,adfq,conv"]),
     ("population", ["--members", "1,x"], ["--members '1,x': expected comma-separated population sizes >= 1"]),
     ("train_throughput", ["--loop-frames", "100"], ["--loop-frames 100: expected more than the 500 warm-up"]),
