@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 import torch
+from _cli import parse_checked
 from torchrl.envs import StepCounter
 
 from aia.envs import make_env
@@ -222,7 +223,7 @@ def main() -> None:
     parser.add_argument("--baseline-commit", default=None,
                         help="git commit of a planner to compare the throughput to (default: none)")
     parser.add_argument("--out", type=Path, default=None)
-    args = parser.parse_args()
+    args = parse_checked(parser)
     for flag, names in (("--settings", args.settings), ("--quality-setting", [args.quality_setting])):
         unknown = [name for name in names if name not in available_settings()]
         if unknown:

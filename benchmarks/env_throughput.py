@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 import torch
+from _cli import parse_checked
 
 from aia.envs import make_env
 from aia.envs.factory import available_settings
@@ -181,7 +182,7 @@ def main() -> None:
                         help="report each case as a fraction of this setting's frames/s in the same round")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--single", default=None, help=argparse.SUPPRESS)  # one case, JSON in and out
-    args = parser.parse_args()
+    args = parse_checked(parser)
     if args.single:
         case = json.loads(args.single)
         print(json.dumps(measure(**case)))

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import torch
+from _cli import parse_checked
 from hydra import compose, initialize_config_module
 from mcap.writer import Writer
 
@@ -149,7 +150,7 @@ def main() -> None:
     parser.add_argument("--skip-train", action="store_true", help="skip the aia-train overhead run")
     parser.add_argument("--train-overrides", nargs="*", default=[], help="overrides of the aia-train run")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "log_throughput.json")
-    args = parser.parse_args()
+    args = parse_checked(parser)
     torch.manual_seed(0)
 
     scalars = scalars_per_second(args.messages, args.repeats)

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import torch
+from _cli import parse_checked
 
 from aia import rng
 from aia.envs import load_env_config, make_env
@@ -77,7 +78,7 @@ def main() -> None:
     parser.add_argument("--compile", action="store_true", help="the memory figure's env compiled")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--memory-only", action="store_true", help=argparse.SUPPRESS)  # the fresh process
-    args = parser.parse_args()
+    args = parse_checked(parser)
     for flag, value in (("--batch-size", args.batch_size), ("--repeats", args.repeats), ("--steps", args.steps)):
         if value < 1:
             parser.error(f"{flag} {value}: expected an integer >= 1")

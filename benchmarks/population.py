@@ -89,6 +89,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import torch
+from _cli import parse_checked
 from hydra import compose, initialize_config_module
 from tensordict import TensorDict
 from torchrl.data import Categorical
@@ -507,7 +508,7 @@ def main() -> None:
     parser.add_argument("--count-syncs", type=int, default=0, metavar="P",
                         help="on CUDA: first count the host-device syncs of a P-member population's job, by site")
     parser.add_argument("--out", type=Path, default=None)
-    args = parser.parse_args()
+    args = parse_checked(parser)
 
     def sizes_of(flag: str, text: str) -> list[int]:  # "1,20" -> [1, 20]; "" -> []
         try:

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import torch
+from _cli import parse_checked
 from population import ROWS, member_configs
 from torch.profiler import ProfilerActivity, profile
 
@@ -119,7 +120,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=200, help="updating frames of the job")
     parser.add_argument("--traces", type=Path, default=None, help="a folder for each mode's Chrome trace")
     parser.add_argument("--out", type=Path, default=None)
-    args = parser.parse_args()
+    args = parse_checked(parser)
     modes = args.modes.split(",")
     if not set(modes) <= {"eager", "compiled"}:
         parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")

@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 import torch
+from _cli import parse_checked
 from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
@@ -162,7 +163,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--parts", default="updates,loop", help="comma-separated: updates, loop")
     parser.add_argument("--algos", default="dqn,ddqn,adfq", help="comma-separated subset of dqn, ddqn, adfq")
-    args = parser.parse_args()
+    args = parse_checked(parser)
     parts = set(args.parts.split(","))
     if not parts or not parts <= {"updates", "loop"}:
         parser.error(f"--parts {args.parts!r}: expected a comma-separated subset of updates,loop")

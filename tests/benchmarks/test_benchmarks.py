@@ -1,6 +1,7 @@
 """The scripts of benchmarks/: each imports and prints its ``--help`` (a stale import once left
-``log_throughput.py`` unrunnable unnoticed), bad input is refused in one line with exit status 2 before any
-measuring, and the population benchmark's model of a row's network is the network its preset builds."""
+``log_throughput.py`` unrunnable unnoticed), bad input (the shared ``--device`` and ``--out`` too) is refused in
+one line with exit status 2 before any measuring, and the population benchmark's model of a row's network is the
+network its preset builds."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+import torch
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
@@ -28,7 +30,7 @@ def _main(module: ModuleType, args: list[str], monkeypatch: pytest.MonkeyPatch) 
     return exit_.value.code
 
 
-@pytest.mark.parametrize("name", sorted(path.stem for path in BENCHMARKS.glob("*.py")))
+@pytest.mark.parametrize("name", sorted(path.stem for path in BENCHMARKS.glob("*.py") if path.stem != "_cli"))
 def test_a_benchmark_imports_and_prints_its_help(name, monkeypatch, capsys):
     assert _main(_script(name, monkeypatch), ["--help"], monkeypatch) == 0
     assert capsys.readouterr().out.startswith(f"usage: {name}.py")
@@ -44,7 +46,11 @@ def test_a_benchmark_imports_and_prints_its_help(name, monkeypatch, capsys):
     ("population", ["--algos", "dqn,foo"], ["--algos 'dqn,foo'", "dqn,adfq,conv"]),
     ("population", ["--members", "1,x"], ["--members '1,x': expected comma-separated population sizes >= 1"]),
     ("train_throughput", ["--loop-frames", "100"], ["--loop-frames 100: expected more than the 500 warm-up"]),
-])
+    ("env_throughput", ["--device", "nosuch"], ["--device 'nosuch': expected cpu, cuda or cuda:N"]),
+    ("map_generation", ["--out", "/proc/nope/x.json"], ["--out /proc/nope/x.json: its folder cannot be made"]),
+    ("log_throughput", ["--out", str(BENCHMARKS)], [f"--out {BENCHMARKS}: a folder, expected a file path"]),
+] + ([("arvi", ["--device", "cuda"], ["--device 'cuda': this machine has no CUDA device"])]
+     if not torch.cuda.is_available() else []))
 def test_bad_input_is_refused_in_one_line(name, args, said, monkeypatch, capsys):
     assert _main(_script(name, monkeypatch), args, monkeypatch) == 2
     last = capsys.readouterr().err.strip().splitlines()[-1]
