@@ -6,25 +6,21 @@ from __future__ import annotations
 import argparse
 import os
 
-import torch
-
-from aia.config.errors import os_error_text
+from aia.config.checks import Device
+from aia.config.errors import ConfigError, os_error_text
 
 
 def parse_checked(parser: argparse.ArgumentParser) -> argparse.Namespace:
-    """``parser.parse_args()`` with its ``--device`` (a device this machine has) and ``--out`` (a file path whose
-    folder exists or can be made, not a folder) checked; the folder of ``--out`` is made here."""
+    """``parser.parse_args()`` with its ``--device`` (a device this machine has: the apps' check,
+    :class:`aia.config.checks.Device`) and ``--out`` (a file path whose folder exists or can be made, not a folder)
+    checked; the folder of ``--out`` is made here."""
     args = parser.parse_args()
     device = getattr(args, "device", None)
     if device is not None:
         try:
-            kind = torch.device(device).type
-        except RuntimeError:
-            parser.error(f"--device {device!r}: expected cpu, cuda or cuda:N")
-        if kind == "cuda" and not torch.cuda.is_available():
-            parser.error(f"--device {device!r}: this machine has no CUDA device (torch {torch.__version__})")
-        elif kind not in ("cpu", "cuda"):
-            parser.error(f"--device {device!r}: expected cpu, cuda or cuda:N")
+            Device()("--device", device)  # the apps' check of device=
+        except ConfigError as err:
+            parser.error(f"--device {device!r}: expected {err.allowed}")
     out = getattr(args, "out", None)
     if out is not None:
         if out.is_dir() or str(out).endswith(os.sep):

@@ -60,6 +60,7 @@ def composition_error(err: Exception, schema: type) -> ConfigError | None:
             return ConfigError(override["key"], override["value"], allowed)
     return ConfigError(cause.full_key, cause.value, _type_wanted(cause)) if wrong_type else None
 
+
 # OmegaConf's words for a field's type in its conversion errors, and ours
 _TYPE_WORDS = {"Float": "a number", "Integer": "an integer", "Boolean": "true or false"}
 
