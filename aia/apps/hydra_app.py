@@ -3,7 +3,7 @@
 Libraries log at WARNING and above only (torchrl's INFO lines would break into the progress bar). An
 invalid input (a :class:`~aia.config.errors.ConfigError` from the validation layer, or a command line Hydra
 cannot compose: an unknown group option or key, a value of the wrong type for the app's typed schema, a
-malformed override) ends the app with one line on stderr,
+malformed override, a run folder Hydra cannot make or write) ends the app with one line on stderr,
 ``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. A run that fails for a reason outside
 its config (:class:`~aia.config.errors.RunFailed`: a file it could not write, a run folder in use, a sweep job whose
 process died, this one after the other jobs) ends it with one line and exit status 1. Any other exception is an
@@ -121,6 +121,10 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
             except BrokenPipeError:  # stdout closed early (aia-train --help | head): end quietly
                 os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
                 raise SystemExit(EXIT_FAILURE) from None
+            except OSError as err:  # Hydra's own setup (the run folder), before the task
+                if debug or _raised_in(err, guarded) or not isinstance(err.filename, str):
+                    raise  # the task's own: an internal error, with its traceback
+                _exit_with(prog, run_folder_message(err))
             finally:
                 if previous is None:
                     os.environ.pop("HYDRA_FULL_ERROR", None)
@@ -144,6 +148,24 @@ def composition_message(err: Exception, schema: type) -> str:
     if isinstance(cause, OmegaConfBaseException) and cause.msg:
         message += f" ({cause.msg.splitlines()[0]})"
     return message
+
+
+def run_folder_message(err: OSError) -> str:
+    """Hydra's failure to make or write a run's folder (``err``, before the task ran), in one line naming the
+    setting that chose it: ``hydra.sweep.dir`` for a sweep (``-m``), ``hydra.run.dir`` otherwise."""
+    sweep = any(a in ("-m", "--multirun") or a.replace(" ", "") == "hydra.mode=MULTIRUN" for a in sys.argv[1:])
+    key = "hydra.sweep.dir" if sweep else "hydra.run.dir"
+    return f"{key}: cannot make or write {err.filename!r} ({err.strerror}): expected a folder this user can make"
+
+
+def _raised_in(err: BaseException, function: Callable[..., Any]) -> bool:
+    """Whether ``function``'s frame is on ``err``'s traceback (``err`` went through it)."""
+    tb = err.__traceback__
+    while tb is not None:
+        if tb.tb_frame.f_code is function.__code__:
+            return True
+        tb = tb.tb_next
+    return False
 
 
 def _exit_with(prog: str, err: Exception | str, status: int = EXIT_USAGE) -> None:

@@ -167,6 +167,20 @@ def test_rollout_rejects_bad_input_in_one_line(bad_map, tmp_path, monkeypatch, c
         _assert_one_line(code, err, "aia-rollout", *words)
 
 
+def test_a_run_folder_that_cannot_be_made_is_named_in_one_line(tmp_path, monkeypatch, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    for main, prog, argv, key in ((rollout.main, "aia-rollout", [f"hydra.run.dir={blocker / 'run'}"], "hydra.run.dir"),
+                                  (train.main, "aia-train", ["-m", f"hydra.sweep.dir={blocker / 'sweep'}", "seed=0,1"],
+                                   "hydra.sweep.dir")):
+        monkeypatch.setattr(sys, "argv", ["app", *argv, *HYDRA_QUIET])
+        with pytest.raises(SystemExit) as info:
+            main()
+        _assert_one_line(info.value.code, capsys.readouterr().err, prog, f"{key}: cannot make or write",
+                         str(blocker), "Not a directory")
+    assert blocker.read_text() == ""
+
+
 def test_help_lists_only_what_can_be_set(tmp_path, monkeypatch, capsys):
     for main, groups, absent in ((train.main, ("env:", "algo:", "exploration:", "method:", "experiment:"),
                                   ("maps", "planner", "schema", "variant_2019")),
