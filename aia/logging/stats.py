@@ -139,7 +139,7 @@ class GroupStats:
     label: str
     runs: int
     levels: np.ndarray
-    iqm: Estimate
+    iqm: Estimate | None        # None for fewer runs than the IQM needs (MIN_RUNS)
     mean: Estimate
     comparisons: list[Comparison] = field(default_factory=list)
 
@@ -220,11 +220,14 @@ def interval(scores: np.ndarray | list[np.ndarray], func: Callable[..., np.ndarr
     return np.asarray(points["x"], dtype=float), np.asarray(intervals["x"], dtype=float)
 
 
-def level_estimates(levels: np.ndarray, config: StatsConfig) -> tuple[Estimate, Estimate]:
-    """The IQM and the mean of ``levels`` (one per run) with their stratified-bootstrap intervals."""
-    iqm_of, mean_of = aggregate("iqm"), aggregate("mean")
-    points, cis = interval(levels[:, None], lambda s: np.array([iqm_of(s), mean_of(s)]), config)
-    return (Estimate(points[0], cis[0, 0], cis[1, 0]), Estimate(points[1], cis[0, 1], cis[1, 1]))
+def level_estimates(levels: np.ndarray, config: StatsConfig) -> tuple[Estimate | None, Estimate]:
+    """The IQM and the mean of ``levels`` (one per run) with their stratified-bootstrap intervals; no IQM (None)
+    for fewer runs than it needs (``MIN_RUNS``): it would trim nothing, and be the mean under another name."""
+    names = [name for name in STATISTICS if len(levels) >= MIN_RUNS[name]]
+    functions = [aggregate(name) for name in names]
+    points, cis = interval(levels[:, None], lambda s: np.array([f(s) for f in functions]), config)
+    estimates = {name: Estimate(points[k], cis[0, k], cis[1, k]) for k, name in enumerate(names)}
+    return estimates.get("iqm"), estimates["mean"]
 
 
 def verdict(estimate: Estimate, threshold: float) -> str:
@@ -388,16 +391,20 @@ def stats_table(groups: Sequence[GroupStats], baselines: Sequence[GroupStats], m
             rule += "---:|"
     rows = [header, rule]
     for group in groups:
-        row = f"| {group.label} | {group.runs} | {group.iqm.text()} | {group.mean.text()} |"
+        row = f"| {group.label} | {group.runs} | {_iqm_text(group)} | {group.mean.text()} |"
         for comparison in group.comparisons:
             row += f" {comparison.poi.text(2)} | {comparison.difference.text()} | {comparison.verdict} |"
             if reaching:
                 row += f" {comparison.reaching.text() if comparison.reaching else ''} |"
         rows.append(row)
     for base in baselines:
-        rows.append(f"| {base.label} (baseline) | {base.runs} | {base.iqm.text()} | {base.mean.text()} |"
+        rows.append(f"| {base.label} (baseline) | {base.runs} | {_iqm_text(base)} | {base.mean.text()} |"
                     + " |" * ((3 + reaching) * len(baselines)))
     return "\n".join(rows)
+
+
+def _iqm_text(group: GroupStats) -> str:
+    return group.iqm.text() if group.iqm else f"(needs {MIN_RUNS['iqm']} runs)"
 
 
 def describe(metric: str, config: StatsConfig) -> str:
@@ -416,7 +423,7 @@ def stats_json(groups: Sequence[GroupStats], baselines: Sequence[GroupStats], me
         return {"estimate": e.value, "ci": [e.low, e.high]}
 
     def group(g: GroupStats) -> dict:
-        data = {"group": g.label, "runs": g.runs, "levels": g.levels.tolist(), "iqm": estimate(g.iqm),
+        data = {"group": g.label, "runs": g.runs, "levels": g.levels.tolist(), "iqm": g.iqm and estimate(g.iqm),
                 "mean": estimate(g.mean)}
         if g.comparisons:
             data["comparisons"] = [

@@ -326,9 +326,11 @@ def test_stats_refuses_a_bad_group_key_too_few_runs_and_bad_options_in_one_line(
         assert main(["stats", runs, *arguments]) == 2, arguments
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err and err.startswith("aia-log"), err
-    # with the mean, 2 runs per group are enough
+    # with the mean, 2 runs per group are enough; their IQM, which would trim nothing, is not given
     assert main(["stats", runs, "--group-by", "seed", "--statistic", "mean", "--reps", "50"]) == 0
-    assert "| seed=0 | 2 |" in capsys.readouterr().out
+    assert "| seed=0 | 2 | (needs 4 runs) | " in capsys.readouterr().out
+    assert main(["stats", runs, "--group-by", "seed", "--statistic", "mean", "--reps", "50", "--json"]) == 0
+    assert {group["iqm"] for group in json.loads(capsys.readouterr().out)["groups"]} == {None}
 
 
 def test_plot_with_bootstrap_bands(tmp_path, capsys, monkeypatch):
