@@ -67,7 +67,8 @@ def train_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[flo
 def validate_job(cfg: DictConfig, out_dir: Path) -> None:
     """The config (:func:`~aia.config.validation.validate_train_config`) and its run folder: a fresh run into a
     folder that holds a run, or ``resume=auto`` over damaged checkpoints only, is refused here, before the run
-    prints anything (:func:`~aia.training.resuming.resume_path`)."""
+    prints anything (:func:`~aia.training.resuming.resume_path`). The run asks again once it holds the folder's
+    lock, which is the answer it acts on: another process may have written the folder in between."""
     validate_train_config(cfg)
     resume_path(cfg, out_dir)
 

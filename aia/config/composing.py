@@ -5,15 +5,17 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from collections.abc import Sequence
+import typing
+from collections.abc import Mapping, Sequence
 from contextlib import nullcontext
+from typing import Any
 
 from hydra import compose, initialize_config_module
 from hydra.core.global_hydra import GlobalHydra
-from omegaconf import DictConfig
-from omegaconf.errors import ValidationError
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
 
-from aia.config.errors import ConfigError
+from aia.config.errors import ConfigError, one_line
 from aia.config.schemas import declared_check
 
 # the override in Hydra's message on a key the config does not have (or a key under a value)
@@ -61,16 +63,56 @@ def composition_error(err: Exception, schema: type) -> ConfigError | None:
     return ConfigError(cause.full_key, cause.value, _type_wanted(cause)) if wrong_type else None
 
 
+def node_error(err: OmegaConfBaseException, node: Any, schema: type, prefix: str) -> ConfigError:
+    """The :class:`ConfigError` of a config ``node`` (a user's dict or ``DictConfig``) that OmegaConf could not
+    merge into its dataclass (``err``): the node sits at dotted ``prefix`` (``"env."``) of a config of ``schema``,
+    and the error is worded as :func:`composition_error` words the same value on a command line."""
+    from aia.config.validation import unknown_key_allowed  # see composition_error
+
+    key, value = err.full_key, err.value
+    if not key:  # a value where the dataclass has a group of keys: OmegaConf's merge does not say where
+        key, value = _value_for_group(node, err.object_type) or ("", value)
+    elif isinstance(err, ConfigKeyError):
+        value = OmegaConf.select(OmegaConf.create(node), key)
+    key = prefix + key
+    if isinstance(err, ValidationError):
+        check = declared_check(schema, key)
+        return ConfigError(key, value, check.allowed if check is not None else _type_wanted(err, key))
+    allowed = unknown_key_allowed(schema, key) if isinstance(err, ConfigKeyError) else None
+    return ConfigError(key, value, allowed or f"a value of the field's type ({one_line(err.msg)})")
+
+
+def _value_for_group(node: Any, dataclass: type | None, prefix: str = "") -> tuple[str, Any] | None:
+    """The first dotted key of ``node`` (a mapping) holding a value where ``dataclass`` has a dataclass field (a
+    group of keys), and the value; None if there is none."""
+    if dataclass is None or not isinstance(node, Mapping | DictConfig):
+        return None
+    hints = typing.get_type_hints(dataclass)
+    for name, value in node.items():
+        hint = hints.get(str(name))
+        if dataclasses.is_dataclass(hint):
+            if not isinstance(value, Mapping | DictConfig):
+                return prefix + str(name), value
+            found = _value_for_group(value, hint, f"{prefix}{name}.")
+            if found:
+                return found
+    return None
+
+
 # OmegaConf's words for a field's type in its conversion errors, and ours
 _TYPE_WORDS = {"Float": "a number", "Integer": "an integer", "Boolean": "true or false"}
 
 
-def _type_wanted(cause: ValidationError) -> str:
-    """What a field wants, from OmegaConf's error on a value of another type."""
+def _type_wanted(cause: ValidationError, key: str | None = None) -> str:
+    """What the field at ``key`` (the error's own by default) wants, from OmegaConf's error on a value of another
+    type."""
+    key = key or cause.full_key
     message = cause.msg.splitlines()[0]
     for word, wanted in _TYPE_WORDS.items():
         if message.endswith(f"could not be converted to {word}"):
             return wanted
+    if "is not a ListConfig" in message:
+        return "a list ([a, b, ...])"
     if "is not a subclass of" in message:
-        return f"keys under {cause.full_key} ({cause.full_key}.<key>=<value>), not a value"
+        return f"keys under {key} ({key}.<key>=<value>), not a value"
     return f"a value of the field's type ({message})"

@@ -14,7 +14,7 @@ from torchrl.envs import Compose
 
 import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's ConfigStore)
 from aia.config.checks import check_choice
-from aia.config.composing import compose_config, composition_error
+from aia.config.composing import compose_config, composition_error, node_error
 from aia.config.errors import ConfigError, one_line
 from aia.config.schemas import SCHEMAS
 from aia.envs.config import TrackingConfig
@@ -53,8 +53,7 @@ def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
         merged = OmegaConf.merge(OmegaConf.structured(TrackingConfig), cfg)
         return OmegaConf.to_object(merged)
     except OmegaConfBaseException as err:
-        allowed = f"a value of the env schema ({one_line(err.msg)})"
-        raise ConfigError(f"env.{err.full_key}", err.value, allowed) from None
+        raise node_error(err, cfg, SCHEMAS["env_setting"], "env.") from None
 
 
 def make_transforms(config: TrackingConfig, compile: bool = False, geometry: Geometry | None = None) -> Compose:

@@ -41,8 +41,15 @@ def test_bad_env_input_is_one_line_naming_key_and_value(setting, overrides, name
 
 
 def test_a_bad_type_in_a_config_node_is_named():
-    with pytest.raises(ConfigError, match=r"env.sensor.range='far'.*Float"):
-        to_tracking_config({"sensor": {"range": "far"}})
+    # worded as the apps word the same value on a command line
+    for node, message in (({"sensor": {"range": "far"}}, "env.sensor.range='far': expected a number"),
+                          ({"sensor": {"rang": 3}}, "env.sensor.rang=3: expected one of env.sensor's keys (did you "
+                                                    "mean env.sensor.range?): range,"),
+                          ({"belief": 3}, "env.belief=3: expected keys under env.belief"),
+                          ({"random_map": {"size": "x"}}, "env.random_map.size='x': expected a list")):
+        with pytest.raises(ConfigError) as info:
+            to_tracking_config(node)
+        assert str(info.value).startswith(message), info.value
     with pytest.raises(ConfigError, match="num_targets=1.5"):
         TrackingConfig(num_targets=1.5)
 
