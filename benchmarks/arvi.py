@@ -39,11 +39,10 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import parse_checked
+from _cli import NON_NEGATIVE_INT, POSITIVE_INT, POSITIVE_NUMBER, env_setting, parse_checked
 from torchrl.envs import StepCounter
 
 from aia.envs import make_env
-from aia.envs.factory import available_settings
 from aia.evaluation import episode_scores, run_episodes
 from aia.planners import ARVIConfig, ARVIPlanner, ARVIPolicy
 from aia.policies import RandomPolicy
@@ -206,28 +205,28 @@ def quality_summary(quality: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--settings", nargs="+", default=["empty1", "small3"])
-    parser.add_argument("--worlds", nargs="+", type=int, default=[1, 10])
-    parser.add_argument("--fast-budget", type=float, default=0.04, help="seconds per call of the fast setting")
-    parser.add_argument("--states", type=int, default=5, help="planning calls timed per case")
-    parser.add_argument("--episodes", type=int, default=8, help="seeded episodes per budget for the scores")
-    parser.add_argument("--quality-setting", default="empty1")
-    parser.add_argument("--threads", type=int, default=1,
+    parser.add_argument("--settings", nargs="+", type=env_setting, default=["empty1", "small3"])
+    parser.add_argument("--worlds", nargs="+", type=POSITIVE_INT, default=[1, 10])
+    parser.add_argument("--fast-budget", type=POSITIVE_NUMBER, default=0.04,
+                        help="seconds per call of the fast setting")
+    parser.add_argument("--states", type=POSITIVE_INT, default=5, help="planning calls timed per case")
+    parser.add_argument("--episodes", type=NON_NEGATIVE_INT, default=8,
+                        help="seeded episodes per budget for the scores (0: no scores)")
+    parser.add_argument("--quality-setting", type=env_setting, default="empty1")
+    parser.add_argument("--threads", type=POSITIVE_INT, default=1,
                         help="torch CPU threads (planning is latency-bound: on a busy machine a second thread "
                              "makes every batched Cholesky wait for the other core)")
     parser.add_argument("--only", choices=["throughput", "timing"], default=None,
                         help="run only the throughput table (and profile) or only the timing and score tables")
-    parser.add_argument("--nodes", type=int, default=5000, help="node budget per world of the throughput table")
-    parser.add_argument("--throughput-worlds", nargs="+", type=int, default=[1, 10, 50])
-    parser.add_argument("--throughput-states", type=int, default=3, help="planning calls timed per throughput case")
+    parser.add_argument("--nodes", type=POSITIVE_INT, default=5000,
+                        help="node budget per world of the throughput table")
+    parser.add_argument("--throughput-worlds", nargs="+", type=POSITIVE_INT, default=[1, 10, 50])
+    parser.add_argument("--throughput-states", type=POSITIVE_INT, default=3,
+                        help="planning calls timed per throughput case")
     parser.add_argument("--baseline-commit", default=None,
                         help="git commit of a planner to compare the throughput to (default: none)")
     parser.add_argument("--out", type=Path, default=None)
     args = parse_checked(parser)
-    for flag, names in (("--settings", args.settings), ("--quality-setting", [args.quality_setting])):
-        unknown = [name for name in names if name not in available_settings()]
-        if unknown:
-            parser.error(f"{flag} {unknown[0]!r}: expected env settings among {', '.join(available_settings())}")
     torch.set_num_threads(args.threads)
 
     throughput, profile = [], ""

@@ -39,10 +39,9 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import parse_checked
+from _cli import NON_NEGATIVE_INT, POSITIVE_INT, env_setting, git_commit, parse_checked
 
 from aia.envs import make_env
-from aia.envs.factory import available_settings
 from aia.logging.mcap_logger import git_state
 from aia.runtime.timing import sgemm_gflops, synchronize, utc_now
 
@@ -168,16 +167,18 @@ def run_case(case: dict, env: dict | None = None) -> dict | str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--settings", nargs="+", default=list(SETTINGS))
-    parser.add_argument("--batch-sizes", nargs="+", type=int, default=[1, 16, 256, 4096])
-    parser.add_argument("--steps", type=int, default=100, help="batched steps per timed window")
-    parser.add_argument("--repeats", type=int, default=5, help="timed windows per case; the median is reported")
-    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--settings", nargs="+", type=env_setting, default=list(SETTINGS))
+    parser.add_argument("--batch-sizes", nargs="+", type=POSITIVE_INT, default=[1, 16, 256, 4096])
+    parser.add_argument("--steps", type=POSITIVE_INT, default=100, help="batched steps per timed window")
+    parser.add_argument("--repeats", type=POSITIVE_INT, default=5,
+                        help="timed windows per case; the median is reported")
+    parser.add_argument("--warmup", type=NON_NEGATIVE_INT, default=20)
     parser.add_argument("--modes", nargs="+", choices=("eager", "compiled"), default=["eager", "compiled"],
                         help="eager steps, and steps through torch.compile (make_env(compile=True))")
     parser.add_argument("--filters", action="store_true", help="one case per belief filter (FILTER_CASES)")
-    parser.add_argument("--baseline", default=None, help="git commit whose code measures every case again")
-    parser.add_argument("--rounds", type=int, default=1, help="times every case is measured, round by round")
+    parser.add_argument("--baseline", type=git_commit, default=None,
+                        help="git commit whose code measures every case again")
+    parser.add_argument("--rounds", type=POSITIVE_INT, default=1, help="times every case is measured, round by round")
     parser.add_argument("--relative-to", default=None, metavar="SETTING",
                         help="report each case as a fraction of this setting's frames/s in the same round")
     parser.add_argument("--out", type=Path, default=None)
@@ -189,13 +190,6 @@ def main() -> None:
         return
 
     settings = list(FILTER_CASES) if args.filters else args.settings
-    unknown = [setting for setting in settings if not args.filters and setting not in available_settings()]
-    if unknown:
-        parser.error(f"--settings {unknown[0]!r}: expected env settings among {', '.join(available_settings())}")
-    for flag, values in (("--batch-sizes", args.batch_sizes), ("--steps", [args.steps]), ("--repeats", [args.repeats]),
-                         ("--rounds", [args.rounds])):
-        if min(values) < 1:
-            parser.error(f"{flag} {min(values)}: expected integers >= 1")
     if args.relative_to is not None and args.relative_to not in settings:
         parser.error(f"--relative-to {args.relative_to!r} is not one of the settings measured: {settings}")
     rows = []

@@ -26,10 +26,15 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import parse_checked
-from hydra import compose, initialize_config_module
+from _cli import POSITIVE_INT, parse_checked
 from mcap.writer import Writer
+from omegaconf import DictConfig
 
+from aia.apps.hydra_app import COMPOSITION_ERRORS, composition_message
+from aia.config.composing import compose_config
+from aia.config.errors import ConfigError, one_line
+from aia.config.schemas import SCHEMAS
+from aia.config.validation import validate_train_config
 from aia.envs import make_env
 from aia.logging import MCAPLogger, SceneRecorder
 from aia.logging.mcap_logger import MCAPRun
@@ -119,8 +124,17 @@ class _Stopwatch:
         return timed
 
 
-def training_overhead(overrides: list[str]) -> dict:
-    """Share of a default ``aia-train`` run's wall time spent in the MCAP logger and the recorder."""
+def train_config(overrides: list[str]) -> DictConfig:
+    """The config of the ``aia-train`` run with ``logger=mcap`` and ``overrides``, composed and validated as
+    ``aia-train`` does: a :class:`ConfigError` (or the error Hydra raised, for :func:`composition_message`) if
+    ``aia-train`` would refuse them."""
+    cfg = compose_config("train", ["logger=mcap", *overrides])
+    validate_train_config(cfg)
+    return cfg
+
+
+def training_overhead(cfg: DictConfig, overrides: list[str]) -> dict:
+    """Share of the wall time of an ``aia-train`` run of ``cfg`` spent in the MCAP logger and the recorder."""
     watch = _Stopwatch()
     patched = [(MCAPLogger, name) for name in ("log_scalar", "log_hparams", "log_text", "flush", "shutdown")]
     patched += [(MCAPRun, "__init__"), (SceneRecorder, "_write_frame"), (SceneRecorder, "_reset")]
@@ -128,8 +142,6 @@ def training_overhead(overrides: list[str]) -> dict:
     for cls, name, fn in originals:
         setattr(cls, name, watch.wrap(fn))
     try:
-        with initialize_config_module(config_module="aia.conf", version_base="1.3"):
-            cfg = compose(config_name="train", overrides=["logger=mcap", *overrides])
         with tempfile.TemporaryDirectory() as folder:
             start = time.perf_counter()
             state = train(cfg, Path(folder))
@@ -144,13 +156,21 @@ def training_overhead(overrides: list[str]) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--messages", type=int, default=200_000, help="scalars per timed window")
-    parser.add_argument("--episodes", type=int, default=20, help="recorded episodes per timed window")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--messages", type=POSITIVE_INT, default=200_000, help="scalars per timed window")
+    parser.add_argument("--episodes", type=POSITIVE_INT, default=20, help="recorded episodes per timed window")
+    parser.add_argument("--repeats", type=POSITIVE_INT, default=3)
     parser.add_argument("--skip-train", action="store_true", help="skip the aia-train overhead run")
-    parser.add_argument("--train-overrides", nargs="*", default=[], help="overrides of the aia-train run")
+    parser.add_argument("--train-overrides", nargs="*", default=[],
+                        help="overrides of the aia-train run, as aia-train takes them (algo=adfq frames=5000)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "log_throughput.json")
     args = parse_checked(parser)
+    cfg = None
+    if not args.skip_train:  # refused before any measuring, in aia-train's words
+        try:
+            cfg = train_config(args.train_overrides)
+        except (*COMPOSITION_ERRORS, ConfigError) as err:
+            message = err if isinstance(err, ConfigError) else composition_message(err, SCHEMAS["train"])
+            parser.error(f"--train-overrides: {one_line(message)}")
     torch.manual_seed(0)
 
     scalars = scalars_per_second(args.messages, args.repeats)
@@ -162,7 +182,7 @@ def main() -> None:
     print(f"| scene frames/s (obstacles1, 3 targets) | {scenes['scene_frames_per_s']:,.0f} | >= 4,000 |", flush=True)
     overhead = None
     if not args.skip_train:
-        overhead = training_overhead(args.train_overrides)
+        overhead = training_overhead(cfg, args.train_overrides)
         print(f"| logging share of a default aia-train run ({overhead['run_s']:.0f} s, {overhead['logging_calls']} "
               f"calls, {overhead['log_bytes'] / 1e3:.0f} kB) | {overhead['overhead_pct']:.2f} % | < 3 % |")
 

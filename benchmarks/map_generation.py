@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import parse_checked
+from _cli import POSITIVE_INT, parse_checked
 
 from aia import rng
 from aia.envs import load_env_config, make_env
@@ -71,17 +71,14 @@ def peak_memory(batch_size: int, device: str, steps: int, compile: bool) -> floa
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--batch-size", type=int, default=4096)
+    parser.add_argument("--batch-size", type=POSITIVE_INT, default=4096)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=20, help="steps of the memory figure's env")
+    parser.add_argument("--repeats", type=POSITIVE_INT, default=5)
+    parser.add_argument("--steps", type=POSITIVE_INT, default=20, help="steps of the memory figure's env")
     parser.add_argument("--compile", action="store_true", help="the memory figure's env compiled")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--memory-only", action="store_true", help=argparse.SUPPRESS)  # the fresh process
     args = parse_checked(parser)
-    for flag, value in (("--batch-size", args.batch_size), ("--repeats", args.repeats), ("--steps", args.steps)):
-        if value < 1:
-            parser.error(f"{flag} {value}: expected an integer >= 1")
     if args.memory_only:
         print(peak_memory(args.batch_size, args.device, args.steps, args.compile))
         return

@@ -89,7 +89,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import torch
-from _cli import parse_checked
+from _cli import NON_NEGATIVE_INT, POSITIVE_INT, comma_separated, git_commit, parse_checked, subset_of
 from hydra import compose, initialize_config_module
 from tensordict import TensorDict
 from torchrl.data import Categorical
@@ -486,51 +486,34 @@ def measure_solo_loops(baseline: str, frames: int, repeats: int) -> list[dict]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--members", default="1,5,20,80", help="comma-separated population sizes")
-    parser.add_argument("--modes", default="eager,compiled", help="comma-separated: eager, compiled")
-    parser.add_argument("--algos", default=",".join(ROWS),
+    sizes = comma_separated(POSITIVE_INT, "comma-separated population sizes >= 1", skip_empty=True)
+    parser.add_argument("--members", type=sizes, default="1,5,20,80", help="comma-separated population sizes")
+    parser.add_argument("--modes", type=subset_of(("eager", "compiled")), default="eager,compiled",
+                        help="comma-separated: eager, compiled")
+    parser.add_argument("--algos", type=subset_of(tuple(ROWS), skip_empty=True), default=",".join(ROWS),
                         help="comma-separated learner rows: " + ", ".join(
                             f"{name} ({row.algo} on experiment={row.experiment})"
                             for name, row in ROWS.items()))
-    parser.add_argument("--inner-dtypes", default="float32",
+    parser.add_argument("--inner-dtypes", type=subset_of(("float32", "bfloat16")), default="float32",
                         help="comma-separated inner_dtype values to compare: float32, bfloat16")
-    parser.add_argument("--warmup", type=int, default=200, help="warm-up frames of each job")
-    parser.add_argument("--frames", type=int, default=300, help="updating frames of each job")
-    parser.add_argument("--repeats", type=int, default=1,
+    parser.add_argument("--warmup", type=POSITIVE_INT, default=200, help="warm-up frames of each job")
+    parser.add_argument("--frames", type=POSITIVE_INT, default=300, help="updating frames of each job")
+    parser.add_argument("--repeats", type=POSITIVE_INT, default=1,
                         help="rounds of every population size; rows give the median and the range, and the ratio "
                              "to P = 1 of the same round")
-    parser.add_argument("--conv", default="1,20", help="comma-separated population sizes of the conv network's rows "
+    parser.add_argument("--conv", type=sizes, default="1,20",
+                        help="comma-separated population sizes of the conv network's rows "
                         "(part 3 of the description; empty: none)")
-    parser.add_argument("--conv-steps", type=int, default=100, help="timed steps of each conv row")
+    parser.add_argument("--conv-steps", type=POSITIVE_INT, default=100, help="timed steps of each conv row")
     parser.add_argument("--conv-alternatives", action="store_true",
                         help="also time grouped convolutions, vmap and a loop over the members at P = 1 and 20")
-    parser.add_argument("--baseline", default=None, help="git commit of the solo loop to compare P = 1 with")
-    parser.add_argument("--count-syncs", type=int, default=0, metavar="P",
+    parser.add_argument("--baseline", type=git_commit, default=None,
+                        help="git commit of the solo loop to compare P = 1 with")
+    parser.add_argument("--count-syncs", type=NON_NEGATIVE_INT, default=0, metavar="P",
                         help="on CUDA: first count the host-device syncs of a P-member population's job, by site")
     parser.add_argument("--out", type=Path, default=None)
     args = parse_checked(parser)
-
-    def sizes_of(flag: str, text: str) -> list[int]:  # "1,20" -> [1, 20]; "" -> []
-        try:
-            sizes = [int(p) for p in text.split(",") if p]
-        except ValueError:
-            sizes = [0]
-        if any(size < 1 for size in sizes):
-            parser.error(f"{flag} {text!r}: expected comma-separated population sizes >= 1")
-        return sizes
-
-    sizes, conv_sizes = sizes_of("--members", args.members), sizes_of("--conv", args.conv)
-    for flag, value in (("--repeats", args.repeats), ("--frames", args.frames), ("--conv-steps", args.conv_steps)):
-        if value < 1:
-            parser.error(f"{flag} {value}: expected an integer >= 1")
-    modes = args.modes.split(",")
-    if not set(modes) <= {"eager", "compiled"}:
-        parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")
-    names, dtypes = [name for name in args.algos.split(",") if name], args.inner_dtypes.split(",")
-    if not set(names) <= set(ROWS):
-        parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ROWS)}")
-    if not set(dtypes) <= {"float32", "bfloat16"}:
-        parser.error(f"--inner-dtypes {args.inner_dtypes!r}: expected a comma-separated subset of float32,bfloat16")
+    sizes, conv_sizes, modes, names, dtypes = args.members, args.conv, args.modes, args.algos, args.inner_dtypes
     on_gpu = torch.device(args.device).type == "cuda"
     if args.count_syncs and not on_gpu:
         parser.error(f"--count-syncs {args.count_syncs}: counts CUDA syncs, so it needs --device cuda "

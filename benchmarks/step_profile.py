@@ -26,10 +26,11 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import parse_checked
+from _cli import POSITIVE_INT, folder, number, parse_checked, subset_of
 from population import ROWS, member_configs
 from torch.profiler import ProfilerActivity, profile
 
+from aia.config.checks import Number
 from aia.logging.mcap_logger import git_state
 from aia.runtime.timing import synchronize, utc_now
 from aia.training import train_population
@@ -114,24 +115,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--algo", default="dqn", choices=sorted(ROWS))
-    parser.add_argument("--members", type=int, default=20)
-    parser.add_argument("--modes", default="eager,compiled", help="comma-separated: eager, compiled")
-    parser.add_argument("--warmup", type=int, default=100, help="warm-up frames of the job")
-    parser.add_argument("--frames", type=int, default=200, help="updating frames of the job")
-    parser.add_argument("--traces", type=Path, default=None, help="a folder for each mode's Chrome trace")
+    parser.add_argument("--members", type=POSITIVE_INT, default=20)
+    parser.add_argument("--modes", type=subset_of(("eager", "compiled")), default="eager,compiled",
+                        help="comma-separated: eager, compiled")
+    parser.add_argument("--warmup", type=POSITIVE_INT, default=100, help="warm-up frames of the job")
+    parser.add_argument("--frames", type=number(Number(ge=SKIPPED_UPDATES, integer=True)), default=200,
+                        help=f"updating frames of the job (its first {SKIPPED_UPDATES} updates are not profiled)")
+    parser.add_argument("--traces", type=folder, default=None, help="a folder for each mode's Chrome trace")
     parser.add_argument("--out", type=Path, default=None)
     args = parse_checked(parser)
-    modes = args.modes.split(",")
-    if not set(modes) <= {"eager", "compiled"}:
-        parser.error(f"--modes {args.modes!r}: expected a comma-separated subset of eager,compiled")
-    if args.members < 1:
-        parser.error(f"--members {args.members}: expected an integer >= 1")
     out = args.out or HERE / "results" / f"step_profile_{args.device.split(':')[0]}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"started_utc": utc_now(),
             **git_state(HERE), "argv": sys.argv[1:], "torch": torch.__version__, "threads": torch.get_num_threads()}
     rows = []
-    for mode in modes:
+    for mode in args.modes:
         rows.append(profile_job(args.algo, args.members, mode == "compiled", args.warmup, args.frames,
                                 args.device, args.traces))
         _print(rows[-1])

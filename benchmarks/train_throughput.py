@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import parse_checked
+from _cli import POSITIVE_INT, parse_checked, subset_of
 from hydra import compose, initialize_config_module
 from torchrl.objectives import HardUpdate
 
@@ -157,21 +157,16 @@ def calibrate() -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--loop-frames", type=int, default=2000,
+    parser.add_argument("--loop-frames", type=POSITIVE_INT, default=2000,
                         help="frames of a loop job (conf/train.yaml's warmup_frames of them warm-up)")
-    parser.add_argument("--repeats", type=int, default=3, help="loop jobs per variant (median)")
+    parser.add_argument("--repeats", type=POSITIVE_INT, default=3, help="loop jobs per variant (median)")
     parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--parts", default="updates,loop", help="comma-separated: updates, loop")
-    parser.add_argument("--algos", default="dqn,ddqn,adfq", help="comma-separated subset of dqn, ddqn, adfq")
+    parser.add_argument("--parts", type=subset_of(("updates", "loop")), default="updates,loop",
+                        help="comma-separated: updates, loop")
+    parser.add_argument("--algos", type=subset_of(ALGOS), default=",".join(ALGOS),
+                        help="comma-separated subset of dqn, ddqn, adfq")
     args = parse_checked(parser)
-    parts = set(args.parts.split(","))
-    if not parts or not parts <= {"updates", "loop"}:
-        parser.error(f"--parts {args.parts!r}: expected a comma-separated subset of updates,loop")
-    algos = args.algos.split(",")
-    if not algos or not set(algos) <= set(ALGOS):
-        parser.error(f"--algos {args.algos!r}: expected a comma-separated subset of {','.join(ALGOS)}")
-    if args.repeats < 1:
-        parser.error(f"--repeats {args.repeats}: expected an integer >= 1")
+    parts, algos = set(args.parts), args.algos
     warmup = _config().warmup_frames
     if args.loop_frames <= warmup:
         parser.error(f"--loop-frames {args.loop_frames}: expected more than the {warmup} warm-up frames "

@@ -38,9 +38,9 @@ def test_a_benchmark_imports_and_prints_its_help(name, monkeypatch, capsys):
 
 @pytest.mark.parametrize("name, args, said", [
     ("env_throughput", ["--settings", "obstacles4"], ["--settings 'obstacles4'", "obstacles1, obstacles1_2019"]),
-    ("env_throughput", ["--batch-sizes", "16", "0"], ["--batch-sizes 0: expected integers >= 1"]),
+    ("env_throughput", ["--batch-sizes", "16", "0"], ["--batch-sizes 0: expected an integer >= 1"]),
     ("map_generation", ["--batch-size", "0"], ["--batch-size 0: expected an integer >= 1"]),
-    ("arvi", ["--quality-setting", "bar"], ["--quality-setting 'bar'", "empty1"]),
+    ("arvi", ["--quality-setting", "bar"], ["--quality-setting 'bar': expected an env setting among", "empty1"]),
     ("arvi", ["--only", "throughput", "--baseline-commit", "no-such-commit"],
      ["--baseline-commit no-such-commit: git has no aia/planners/arvi.py there"]),
     ("population", ["--algos", "dqn,foo"], ["--algos 'dqn,foo'", "dqn,adfq,conv"]),
@@ -57,6 +57,54 @@ def test_bad_input_is_refused_in_one_line(name, args, said, monkeypatch, capsys)
     assert _main(_script(name, monkeypatch), args, monkeypatch) == 2
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last.startswith(f"{name}.py: error: ") and all(part in last for part in said), last
+
+
+@pytest.mark.parametrize("name, args, said", [
+    ("arvi", ["--worlds", "1", "0"], "--worlds 0: expected an integer >= 1"),
+    ("arvi", ["--states", "0"], "--states 0: expected an integer >= 1"),
+    ("arvi", ["--episodes", "-1"], "--episodes -1: expected an integer >= 0"),
+    ("arvi", ["--threads", "x"], "--threads 'x': expected an integer >= 1"),
+    ("arvi", ["--fast-budget", "0"], "--fast-budget 0: expected a number > 0"),
+    ("env_throughput", ["--warmup", "-1"], "--warmup -1: expected an integer >= 0"),
+    ("env_throughput", ["--baseline", "no-such-commit"], "--baseline 'no-such-commit': expected a commit of the git"),
+    ("map_generation", ["--steps", "1.5"], "--steps 1.5: expected an integer >= 1"),
+    ("log_throughput", ["--repeats", "-1"], "--repeats -1: expected an integer >= 1"),
+    ("log_throughput", ["--messages", "0"], "--messages 0: expected an integer >= 1"),
+    ("log_throughput", ["--train-overrides", "env.nope=1"],
+     "--train-overrides: env.nope='1': expected one of env's keys: map, num_targets"),
+    ("log_throughput", ["--train-overrides", "algo=zzz"],
+     "--train-overrides: In 'train': Could not find 'algo/zzz' Available options in 'algo': adfq, ddqn, dqn"),
+    ("log_throughput", ["--train-overrides", "frames=0"], "--train-overrides: frames=0: expected an integer >= 1"),
+    ("population", ["--count-syncs", "-1"], "--count-syncs -1: expected an integer >= 0"),
+    ("population", ["--warmup", "0"], "--warmup 0: expected an integer >= 1"),
+    ("population", ["--modes", "eager,"], "--modes 'eager,': expected a comma-separated subset of eager,compiled"),
+    ("step_profile", ["--frames", "0"], "--frames 0: expected an integer >= 10"),
+    ("step_profile", ["--traces", __file__], f"--traces {__file__}: expected a folder, not a file"),
+    ("train_throughput", ["--parts", "loop,x"], "--parts 'loop,x': expected a comma-separated subset of updates,loop"),
+    ("train_throughput", ["--repeats", "0"], "--repeats 0: expected an integer >= 1"),
+])
+def test_a_bad_number_or_list_is_refused_in_one_line_naming_it(name, args, said, monkeypatch, capsys):
+    assert _main(_script(name, monkeypatch), args, monkeypatch) == 2
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if ": error: " in line]  # argparse's usage lines come first
+    assert len(errors) == 1 and errors[0].startswith(f"{name}.py: error: {said}") and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("name", sorted(path.stem for path in BENCHMARKS.glob("*.py") if path.stem != "_cli"))
+def test_every_number_a_benchmark_reads_is_checked(name, monkeypatch):
+    """No option of a benchmark reads a bare ``int`` or ``float`` (0 or -1 would pass, then fail or mislead in
+    the middle of a run): each has a checked type of ``benchmarks/_cli.py``."""
+    module = _script(name, monkeypatch)
+    parsers = []
+
+    def capture(parser):
+        parsers.append(parser)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(module, "parse_checked", capture)
+    assert _main(module, [], monkeypatch) == 0
+    bare = [action.option_strings[0] for action in parsers[0]._actions if action.type in (int, float)]
+    assert not bare, f"{name}.py reads {bare} unchecked"
 
 
 def test_the_population_rows_model_the_network_their_presets_build(monkeypatch):
