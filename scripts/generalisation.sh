@@ -15,34 +15,46 @@
 #   FRAMES       override of each experiment's training length [the experiment's: 200 training episodes]
 #   TRAIN_OVERRIDES  more aia-train overrides, space-separated []; "resume=auto" continues the learners of a
 #                stopped call from their checkpoints (a learner run folder is never trained over: without it, a
-#                call over runs already there is refused for those runs)
+#                call over runs already there is refused for those runs) and evaluates again the ARVI seeds it had
+#                not finished (no eval.json), keeping the others
 #   EPISODES     evaluation episodes per policy and map [100];  EVAL_SEED  their seed [1000]
 #   ARVI_SEEDS   ARVI seeds per map [0-4];  ARVI_EPISODES  episodes per ARVI seed [20]
 #   ARVI_NODES   ARVI's node budget per world and plan [25000];  ARVI_MIN_RANGE  planner.min_range [2]
 #   JOBS         processes in parallel [2];  OUT  output folder [outputs/generalisation]
 #   PHASES       which phases run [learners,evals,arvi,tables]
+# Set but empty, FRAMES and TRAIN_OVERRIDES mean what unset does; any other variable set but empty (SEEDS=, say)
+# is refused in one line naming it and what it takes, as a bad value is (exit 2), before anything runs.
+#
+# Stopping: as scripts/reproduce.sh's (its header): SIGINT, SIGTERM or SIGUSR1 to this script reach the running
+# sweep or evaluations, the script waits for them to end and exits with 128 + signal and one line saying how to
+# continue (TRAIN_OVERRIDES="resume=auto", the other variables as they were).
 #
 # Runs go to $OUT/learners/<trained on>/<method=...,seed=...>, their evaluations to
 # $OUT/evals/<map>/<trained on>/<method=...,seed=...> (an evaluation already written is kept: a stopped call
 # goes on where it stopped), ARVI to $OUT/arvi/<map>/seed=<seed>.
 set -euo pipefail
-# seed_list, parse_phases, machine_speed, phase, throttle, drain
+# given, seed_list, parse_phases, unfinished, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
+# shellcheck source-path=SCRIPTDIR source=lib/protocol.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
-SEEDS=${SEEDS:-0-4}
-METHODS=${METHODS:-dqn,adfq_ts}
-TRAINED_ON=${TRAINED_ON:-"paper_obstacles1 random_obstacles random_obstacles_local_map"}
-EPISODES=${EPISODES:-100}
-EVAL_SEED=${EVAL_SEED:-1000}
-ARVI_SEEDS=${ARVI_SEEDS:-0-4}
-ARVI_EPISODES=${ARVI_EPISODES:-20}
-ARVI_NODES=${ARVI_NODES:-25000}
-ARVI_MIN_RANGE=${ARVI_MIN_RANGE:-2}
-JOBS=${JOBS:-2}
-OUT=${OUT:-outputs/generalisation}
-PHASES=${PHASES:-learners,evals,arvi,tables}
+# Everything is checked before anything runs: a bad or empty value ends the script in one line (exit 2).
+given SEEDS 0-4 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10"
+given METHODS dqn,adfq_ts "some of conf/method/, comma-separated"
+given TRAINED_ON "paper_obstacles1 random_obstacles random_obstacles_local_map" \
+  "some of paper_obstacles1 random_obstacles random_obstacles_local_map"
+given EPISODES 100 "a number of episodes"
+given EVAL_SEED 1000 "a seed"
+given ARVI_SEEDS 0-4 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10 (PHASES without arvi for no ARVI)"
+given ARVI_EPISODES 20 "a number of episodes"
+given ARVI_NODES 25000 "a number of nodes"
+given ARVI_MIN_RANGE 2 "a range in metres"
+given JOBS 2 "a number of processes"
+given OUT outputs/generalisation "a folder"
+given PHASES learners,evals,arvi,tables "some of learners,evals,arvi,tables"
+whole_number JOBS
 MAPS="random_obstacles obstacles4"
 
+# shellcheck disable=SC2153  # given sets SEEDS
 SEED_LIST=$(seed_list SEEDS "$SEEDS")
 ARVI_SEED_LIST=$(seed_list ARVI_SEEDS "$ARVI_SEEDS")
 parse_phases "$PHASES" learners evals arvi tables
@@ -61,6 +73,8 @@ done
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
 read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
+RESUME=""  # resume=auto: the ARVI runs a stopped call finished are kept, its others evaluated again
+if [[ " ${TRAIN_EXTRA[*]} " == *" resume=auto "* ]]; then RESUME=1; fi
 
 mkdir -p "$OUT/tables"
 OUT_ABS=$(cd "$OUT" && pwd)
@@ -71,7 +85,7 @@ start=$(date +%s)
 for trained in ${RUN_PHASE[learners]:+$TRAINED_ON}; do
   phase "learners on $trained: $METHODS x seeds $SEEDS, as populations"
   read -r -a setting <<< "${TRAINING[$trained]}"
-  aia-train -m hydra/launcher=population "hydra.launcher.n_jobs=$JOBS" "${setting[@]}" "method=$METHODS" \
+  run aia-train -m hydra/launcher=population "hydra.launcher.n_jobs=$JOBS" "${setting[@]}" "method=$METHODS" \
     "seed=$SEED_LIST" threads=1 "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" \
     "hydra.sweep.dir=$OUT/sweeps/learners_$trained" \
     "hydra.sweep.subdir=$OUT_ABS/learners/$trained/\${hydra.job.override_dirname}" \
@@ -95,7 +109,7 @@ if [[ -n "${RUN_PHASE[evals]:-}" ]]; then
         [[ -f "$dir/eval.json" ]] && continue  # written by an earlier call
         mkdir -p "$(dirname "$dir")"
         rm -rf "$dir"  # a stopped evaluation's partial log: run logs are never overwritten
-        evaluate "$checkpoint" "$map" "$dir" &
+        job evaluate "$checkpoint" "$map" "$dir"
         throttle
       done
     done
@@ -108,8 +122,11 @@ for map in ${RUN_PHASE[arvi]:+$MAPS}; do
   phase "ARVI (min range $ARVI_MIN_RANGE m) on $map: seeds $ARVI_SEEDS, $ARVI_EPISODES episodes each"
   env=$map
   if [[ "$map" == obstacles4 ]]; then env=obstacles1; fi  # the paper's setting 2 is obstacles4
-  aia-eval -m hydra/launcher=population hydra.launcher.split_to_fill=true "hydra.launcher.n_jobs=$JOBS" \
-    policy=arvi "env=$env" "seed=$ARVI_SEED_LIST" "episodes=$ARVI_EPISODES" threads=1 \
+  pending_seeds=$ARVI_SEED_LIST
+  if [[ -n "$RESUME" ]]; then pending_seeds=$(unfinished "$OUT/arvi/$map" "$ARVI_SEED_LIST"); fi
+  if [[ -z "$pending_seeds" ]]; then echo "-- every run is there already"; continue; fi
+  run aia-eval -m hydra/launcher=population hydra.launcher.split_to_fill=true "hydra.launcher.n_jobs=$JOBS" \
+    policy=arvi "env=$env" "seed=$pending_seeds" "episodes=$ARVI_EPISODES" threads=1 \
     "planner.min_range=$ARVI_MIN_RANGE" planner.time_budget=null "planner.max_nodes=$ARVI_NODES" \
     "hydra.sweep.dir=$OUT/sweeps/arvi_$map" "hydra.sweep.subdir=$OUT_ABS/arvi/$map/\${hydra.job.override_dirname}" \
     'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
@@ -119,7 +136,7 @@ if [[ -n "${RUN_PHASE[tables]:-}" ]]; then
   phase "tables: the evaluations' statistics per map against ARVI"
   for map in $MAPS; do
     # at least 4 runs per group (the IQM's least): with fewer, the line that says so, and the script goes on
-    if aia-log stats "$OUT/evals/$map" --group-by trained_env.map --group-by trained_env.features.local_map \
+    if run aia-log stats "$OUT/evals/$map" --group-by trained_env.map --group-by trained_env.features.local_map \
         --group-by algo --group-by exploration --baseline "$OUT/arvi/$map" \
         --baseline-label "ARVI, min range $ARVI_MIN_RANGE m" > "$OUT/tables/$map.md"; then
       echo "-- on $map"

@@ -18,8 +18,8 @@
 #                SEEDS=0-19 is 0,1,...,19, and SEEDS=0-4,10,12-13 mixes both
 #   FRAMES       override of each paper experiment's training length [the preset's: 200 training episodes]
 #   TRAIN_OVERRIDES  more aia-train overrides, space-separated, e.g. "device=cuda" or "compile.update=false" [];
-#                "resume=auto" continues a protocol stopped by a signal (Ctrl-C, SIGTERM or SIGUSR1 to the launcher:
-#                each running population ends its episode and checkpoints) from its checkpoints, in the same folders
+#                "resume=auto" continues a stopped protocol (below) in the same folders: its learners from their
+#                checkpoints, and the ARVI seeds it had not finished (no eval.json) evaluated again from the start
 #   JOBS         populations in parallel [2] (one aia-train -m over all settings, hydra/launcher=population:
 #                per setting, DQN with Double DQN and ADFQ-egreedy with ADFQ-TS each train all their seeds as one
 #                population, the largest populations first);  OUT  output folder [outputs/repro]
@@ -43,27 +43,43 @@
 #   ARVI_MIN_RANGES  planner.min_range values, one ARVI baseline each [0 2]: 0 is ARVI as specified,
 #                2 keeps the plan off the belief mean (docs/planner.md, "Minimum planning range");
 #                ARVI_MIN_RANGES= (empty) runs no ARVI, e.g. to add learner seeds
+# Set but empty, ARVI_MIN_RANGES means no ARVI, and FRAMES, ARVI_NODES, TRAIN_OVERRIDES and SLURM_OVERRIDES mean
+# what unset does; any other variable set but empty (SEEDS=, say, or SEEDS=$TYPO) is refused in one line naming it
+# and what it takes, as a bad value is (exit 2), before anything runs.
+#
+# Stopping. SIGINT (Ctrl-C), SIGTERM (kill PID, timeout) or SIGUSR1 to this script go on, once each, to every
+# process of the sweep or job it is running (SIGHUP goes on as SIGTERM): each running population ends its episode
+# and writes its checkpoints (a second Ctrl-C kills them instead), ARVI, evaluations and figures end at once. The
+# script waits for them (the rest of an episode), then exits with 128 + signal (130, 143) and one line: continue it with
+# TRAIN_OVERRIDES="resume=auto" and the other variables as they were. A sweep stopped by a signal sent to it alone
+# (SIGTERM or SIGUSR1 to its launcher) ends the script the same way. Under LAUNCHER=population_slurm the SLURM jobs
+# go on (the launcher's line names them: scancel them before continuing). SIGKILL (kill -9, timeout -k) cannot be
+# passed on: the running sweep would go on without the script.
 #
 # Each run's folder is named by what varies (e.g. $OUT/empty1/learners/method=adfq_ts,seed=3), so a later call
 # with more seeds or methods adds runs next to the ones already there. A run folder is never trained or evaluated
 # over: give a later call only the new seeds (ARVI_MIN_RANGES= skips ARVI), or TRAIN_OVERRIDES="resume=auto",
-# with which the learner runs already there continue (a finished run stays as it is).
+# with which the learner runs already there continue (a finished run stays as it is) and the ARVI runs already
+# finished are kept.
 set -euo pipefail
-# seed_list, parse_phases, machine_speed, phase, throttle, drain
+# given, seed_list, parse_phases, unfinished, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
+# shellcheck source-path=SCRIPTDIR source=lib/protocol.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
-SETTINGS=${SETTINGS:-"empty1 obstacles1 small2 small3"}
-SEEDS=${SEEDS:-0,1,2,3,4}
-ARVI_SEEDS=${ARVI_SEEDS:-0,1,2,3,4,5,6,7,8,9}
-JOBS=${JOBS:-2}
-OUT=${OUT:-outputs/repro}
-FIGURES=${FIGURES:-$OUT/figures}
-ARVI_EPISODES=${ARVI_EPISODES:-5}
-ARVI_BUDGET=${ARVI_BUDGET:-1.0}
-METHODS=${METHODS:-dqn,ddqn,adfq_egreedy,adfq_ts}
+# Everything is checked before anything runs: a bad or empty value ends the script in one line (exit 2).
+given SETTINGS "empty1 obstacles1 small2 small3" "some of empty1 obstacles1 small2 small3"
+given SEEDS 0,1,2,3,4 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10"
+given ARVI_SEEDS 0,1,2,3,4,5,6,7,8,9 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10 (ARVI_MIN_RANGES= for no ARVI)"
+given JOBS 2 "a number of processes"
+given OUT outputs/repro "a folder"
+given FIGURES "$OUT/figures" "a folder"
+given ARVI_EPISODES 5 "a number of episodes"
+given ARVI_BUDGET 1.0 "seconds per plan"
+given METHODS dqn,ddqn,adfq_egreedy,adfq_ts "some of conf/method/, comma-separated"
+given LAUNCHER population "population or population_slurm"
+given PHASES learners,arvi,figures "some of learners,arvi,figures"
 ARVI_MIN_RANGES=${ARVI_MIN_RANGES-"0 2"}  # set but empty: no ARVI runs
-LAUNCHER=${LAUNCHER:-population}
-PHASES=${PHASES:-learners,arvi,figures}
+whole_number JOBS
 read -r -a SLURM_EXTRA <<< "${SLURM_OVERRIDES:-}"
 case "$LAUNCHER" in
   population)
@@ -76,6 +92,7 @@ case "$LAUNCHER" in
       ARVI_LAUNCHER=(hydra/launcher=local "hydra.launcher.n_jobs=$JOBS")
     fi ;;
   population_slurm)
+    stop_note=" (the SLURM jobs go on: scancel the ones the launcher's line above names first)"
     LEARNER_LAUNCHER=(hydra/launcher=population_slurm "${SLURM_EXTRA[@]}")
     ARVI_LAUNCHER=(hydra/launcher=slurm "${SLURM_EXTRA[@]}")  # one job per seed, whatever the budget
     ;;
@@ -83,6 +100,7 @@ case "$LAUNCHER" in
     echo "LAUNCHER='$LAUNCHER': expected population or population_slurm" >&2
     exit 2 ;;
 esac
+# shellcheck disable=SC2153  # given sets SEEDS
 SEED_LIST=$(seed_list SEEDS "$SEEDS")
 # The curves' bands: from 4 seeds per learner on (the IQM's least), the IQM over runs and its stratified-bootstrap
 # CI at each point, as the statistics' verdicts; with fewer, +-1 std over runs.
@@ -98,6 +116,8 @@ fi
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
 read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
+RESUME=""  # resume=auto: the ARVI runs a stopped call finished are kept, its others evaluated again
+if [[ " ${TRAIN_EXTRA[*]} " == *" resume=auto "* ]]; then RESUME=1; fi
 
 declare -A WHERE=(
   [empty1]="--where env.map=empty"
@@ -105,17 +125,16 @@ declare -A WHERE=(
   [small2]="--where env.map=empty_small --where env.num_targets=2"
   [small3]="--where env.map=empty_small --where env.num_targets=3"
 )
-mkdir -p "$OUT" "$FIGURES"
-machine_speed start
-start=$(date +%s)
-phase_name=""
-phase_start=$start
 for setting in $SETTINGS; do
   if [[ -z "${WHERE[$setting]:-}" ]]; then
     echo "unknown setting '$setting': expected some of empty1 obstacles1 small2 small3" >&2
     exit 2
   fi
 done
+mkdir -p "$OUT" "$FIGURES"
+machine_speed start
+start=$(date +%s)
+phase_start=$start
 read -r -a SETTING_LIST <<< "$SETTINGS"
 joined() { local IFS=,; echo "$*"; }
 EXPERIMENTS=$(joined "${SETTING_LIST[@]/#/paper_}")
@@ -134,25 +153,36 @@ baseline() {
 # the largest populations first, $JOBS at a time.
 if [[ -n "${RUN_PHASE[learners]:-}" ]]; then
   phase "learners: $SETTINGS x $METHODS x seeds $SEEDS, as populations ($LAUNCHER)"
-  aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEED_LIST" threads=1 \
+  run aia-train -m "${LEARNER_LAUNCHER[@]}" "experiment=$EXPERIMENTS" "method=$METHODS" "seed=$SEED_LIST" threads=1 \
     "${FRAMES_OVERRIDE[@]}" "${TRAIN_EXTRA[@]}" "hydra.sweep.dir=$OUT/sweeps/learners" \
     "$(run_dir learners)" \
     'hydra.job.config.override_dirname.exclude_keys=[experiment,threads,frames,device,resume,compile.update,compile.env,compile.policy]'
 fi
-ENVS=$(joined "${SETTING_LIST[@]}")
 for min_range in ${RUN_PHASE[arvi]:+$ARVI_MIN_RANGES}; do
   baseline "$min_range"
   phase "$label: $SETTINGS x seeds $ARVI_SEEDS"
-  aia-eval -m "${ARVI_LAUNCHER[@]}" policy=arvi "env=$ENVS" "seed=$ARVI_SEED_LIST" \
-    "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_OVERRIDES[@]}" \
-    "hydra.sweep.dir=$OUT/sweeps/$name" "$(run_dir "$name")" \
-    'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
+  # the seeds still to evaluate -> the settings that need them: one sweep, or after a stop (resume=auto) one per
+  # set of seeds that the settings' finished runs leave
+  declare -A PENDING=()
+  for setting in "${SETTING_LIST[@]}"; do
+    pending_seeds=$ARVI_SEED_LIST
+    if [[ -n "$RESUME" ]]; then pending_seeds=$(unfinished "$OUT/$setting/$name" "$ARVI_SEED_LIST"); fi
+    if [[ -n "$pending_seeds" ]]; then PENDING[$pending_seeds]+="${PENDING[$pending_seeds]:+,}$setting"; fi
+  done
+  if (( ${#PENDING[@]} == 0 )); then echo "-- every run is there already"; fi
+  for pending_seeds in "${!PENDING[@]}"; do
+    run aia-eval -m "${ARVI_LAUNCHER[@]}" policy=arvi "env=${PENDING[$pending_seeds]}" "seed=$pending_seeds" \
+      "episodes=$ARVI_EPISODES" threads=1 "planner.min_range=$min_range" "${ARVI_BUDGET_OVERRIDES[@]}" \
+      "hydra.sweep.dir=$OUT/sweeps/$name" "$(run_dir "$name")" \
+      'hydra.job.config.override_dirname.exclude_keys=[policy,env,episodes,threads,planner.min_range,planner.time_budget,planner.max_nodes]'
+  done
+  unset PENDING
 done
 
 # figures SETTING: the setting's Fig. 2 curves and results table, and a Fig. 3-style trajectory of its first
 # ADFQ-TS seed (its output in $FIGURES/SETTING.log)
 figures() {
-  local setting=$1 baselines=() min_range name label config run
+  local setting=$1 baselines=() min_range name label config learner
   for min_range in $ARVI_MIN_RANGES; do
     baseline "$min_range"
     baselines+=(--baseline "$OUT/$setting/$name" --baseline-label "$label")
@@ -171,13 +201,15 @@ figures() {
   fi
   config=$(grep -l "thompson" "$OUT/$setting"/learners/*/.hydra/config.yaml | head -1 || true)
   if [[ -z "$config" ]]; then echo "no ADFQ-TS run in $OUT/$setting/learners: no trajectory picture"; return; fi
-  run=$(dirname "$(dirname "$config")")
+  learner=$(dirname "$(dirname "$config")")
   # A trajectory evaluated from this checkpoint already (a second PHASES=figures) is drawn again as it is; one
-  # older than the checkpoint is evaluated again (run logs are never overwritten: its folder goes first).
-  if [[ ! "$OUT/$setting/trajectory/run.mcap" -nt "$run/checkpoints/last.pt" ]]; then
+  # older than the checkpoint, or stopped before its end (no eval.json), is evaluated again (run logs are never
+  # overwritten: its folder goes first).
+  if [[ ! -f "$OUT/$setting/trajectory/eval.json" || ! "$OUT/$setting/trajectory/run.mcap" -nt \
+        "$learner/checkpoints/last.pt" ]]; then
     rm -rf "$OUT/$setting/trajectory"
     # quoted: the run's folder name holds '=' and ',' (method=adfq_ts,seed=0), which Hydra's grammar reserves
-    aia-eval "checkpoint='$run/checkpoints/last.pt'" episodes=5 seed=0 threads=1 \
+    aia-eval "checkpoint='$learner/checkpoints/last.pt'" episodes=5 seed=0 threads=1 \
       "hydra.run.dir=$OUT/$setting/trajectory"
   fi
   aia-log render "$OUT/$setting/trajectory/run.mcap" --episode first --frames 5 --size 320 \
@@ -186,7 +218,7 @@ figures() {
 if [[ -n "${RUN_PHASE[figures]:-}" ]]; then
   phase "figures: Fig. 2 curves, results tables and Fig. 3-style trajectories, $JOBS settings at a time"
   for setting in $SETTINGS; do
-    figures "$setting" > "$FIGURES/$setting.log" 2>&1 &
+    job figures "$setting" > "$FIGURES/$setting.log" 2>&1
     throttle
   done
   drain

@@ -1,5 +1,24 @@
-# Shell functions of the experiment protocols (scripts/reproduce.sh, scripts/generalisation.sh), sourced by them.
-# They read the protocol's $OUT and $JOBS, and keep their state in globals (phase_name, phase_start; running, failed).
+# shellcheck shell=bash
+# Shell functions of the experiment protocols (scripts/reproduce.sh, scripts/generalisation.sh), sourced by them
+# first thing. They read the protocol's $OUT, $JOBS and $TRAIN_OVERRIDES, and keep their state in globals
+# (phase_name, phase_start; running, failed; stop_signal). Sourcing this file installs the stop signals' trap.
+
+# given NAME DEFAULT WHAT: NAME keeps its value, or becomes DEFAULT where it is unset; set but empty, it is refused in
+# one line saying that it takes WHAT (exit 2): an empty value is a slip (SEEDS=$UNSET, SEEDS= ...), not a request for
+# the default, which may be far bigger than meant.
+given() {
+  if [[ -z "${!1+set}" ]]; then
+    printf -v "$1" '%s' "$2"
+  elif [[ -z "${!1}" ]]; then
+    echo "$1 is empty: expected $3, or unset for $2" >&2
+    exit 2
+  fi
+}
+
+# whole_number NAME: exit 2 unless $NAME is a whole number from 1 on
+whole_number() {
+  if [[ ! "${!1}" =~ ^[1-9][0-9]*$ ]]; then echo "$1='${!1}': expected a whole number from 1 on" >&2; exit 2; fi
+}
 
 # seed_list NAME VALUE: VALUE's seeds and ranges (0-19, 0-4,10) as a comma-separated list; exit 2 naming a bad one
 seed_list() {
@@ -37,6 +56,20 @@ parse_phases() {
   if (( ${#RUN_PHASE[@]} == 0 )); then echo "PHASES='$value': no phase; expected some of $allowed" >&2; exit 2; fi
 }
 
+# unfinished DIR SEEDS: those of SEEDS (comma-separated) whose run DIR/seed=<seed> has not finished (it has no
+# eval.json), comma-separated; their folders, a stopped call's partial runs, are removed (a run log is never
+# written over)
+unfinished() {
+  local seed todo=()
+  local IFS=,
+  for seed in $2; do
+    if [[ -f "$1/seed=$seed/eval.json" ]]; then continue; fi
+    rm -rf "$1/seed=$seed"
+    todo+=("$seed")
+  done
+  echo "${todo[*]}"
+}
+
 # machine_speed WHEN: record the machine's matmul rate now in $OUT/machine.tsv (nan if it cannot be measured)
 machine_speed() {
   local gflops
@@ -60,13 +93,76 @@ phase() {
   if [[ -n "$phase_name" ]]; then echo "== $phase_name"; fi
 }
 
-# Background jobs, $JOBS at a time: `job &; throttle` after starting each, `drain` at the end; failed=1 once any
-# job has failed.
+# Stopping. Every command that runs for long (a sweep, an evaluation, a setting's figures) starts as a job (job, run
+# below): in the background, where bash runs a trap at once rather than after the command, and as a process group
+# of its own, which the script waits for. SIGINT, SIGTERM and SIGUSR1 to the script (Ctrl-C, kill PID, timeout;
+# SIGHUP, a closed terminal, as SIGTERM) go on to every running job's whole group, each signal once, as a Ctrl-C
+# reaches a command in a terminal: the population launcher's running populations end their episodes and write
+# their checkpoints (a second Ctrl-C kills them), an evaluation or a figure ends at once. A group of its own, so
+# that a terminal's Ctrl-C reaches a sweep from the script only: one that reached it directly as well would be a
+# second Ctrl-C to the launcher. The script waits for its jobs to end, then exits with 128 + signal and one line
+# saying how to continue (stopped). A sweep that a signal sent to it alone stopped (SIGTERM or SIGUSR1 to the
+# launcher) ends the script the same way.
+stop_signal=""
+stop_note=""  # a script's addition to the line on a stop
+# on_stop SIGNAL: the trap of the stop signals; a further one while it waits is forwarded in turn
+on_stop() {
+  local pid forward=$1
+  if [[ "$1" == HUP ]]; then forward=TERM; fi
+  stop_signal=${stop_signal:-$1}
+  for pid in $(jobs -pr); do kill -s "$forward" -- "-$pid" 2>/dev/null || true; done
+  while [[ -n "$(jobs -pr)" ]]; do wait || true; done
+  stopped "$stop_signal"
+}
+for signal in INT TERM USR1 HUP; do
+  # shellcheck disable=SC2064  # the signal's name, now
+  trap "on_stop $signal" "$signal"
+done
+unset signal
+
+# stopped SIGNAL: the protocol's one line on a stop (to stderr), then exit with 128 + SIGNAL: TRAIN_OVERRIDES with
+# resume=auto continues it (the learners from their checkpoints; the evaluations it had not finished run again)
+stopped() {
+  local resume="${TRAIN_OVERRIDES:+$TRAIN_OVERRIDES }resume=auto" where=""
+  if [[ " ${TRAIN_OVERRIDES:-} " == *" resume=auto "* ]]; then resume=$TRAIN_OVERRIDES; fi
+  if [[ -n "$phase_name" ]]; then where=" in phase '${phase_name%%:*}'"; fi
+  echo "$(basename "$0"): stopped by SIG$1$where, its running jobs ended: continue it with" \
+    "TRAIN_OVERRIDES=\"$resume\" and the other variables as they were$stop_note" >&2
+  exit $(( 128 + $(kill -l "$1") ))
+}
+
+# job CMD...: start CMD in the background as a process group of its own (job control on for this one fork), stdin
+# from /dev/null; its process id in $!. A shell function runs in a subshell that a stop signal ends once the
+# command it is running has ended (the signal reached that command too), so that it starts none after.
+job() {
+  set -m
+  if [[ "$(type -t "$1")" == function ]]; then
+    (trap 'exit 130' INT; trap 'exit 143' TERM; trap 'exit 138' USR1; "$@") < /dev/null &
+  else
+    "$@" < /dev/null &
+  fi
+  set +m
+}
+
+# run CMD...: CMD as a job, waited for; its exit status. A sweep ended by a stop signal sent to it alone (status
+# 128 + SIGINT, SIGTERM or SIGUSR1) ends the protocol as one sent to the script does.
+run() {
+  local status=0
+  job "$@"
+  wait "$!" || status=$?
+  case "$status" in 130|138|143) stopped "$(kill -l "$status")" ;; esac
+  return "$status"
+}
+
+# Background jobs, $JOBS at a time: `job CMD...; throttle` after starting each, `drain` at the end; failed=1 once
+# any job has failed.
+# shellcheck disable=SC2034  # failed: read by the scripts
 running=0 failed=0
 throttle() {
   running=$(( running + 1 ))
   if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
 }
+# shellcheck disable=SC2034  # failed: read by the scripts
 drain() {
   while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
 }

@@ -1,12 +1,16 @@
-"""scripts/reproduce.sh end to end on a tiny budget: learner and ARVI runs, curves, table, trajectory picture."""
+"""scripts/reproduce.sh end to end on a tiny budget (learner and ARVI runs, curves, table, trajectory picture), its
+refusals of bad or empty input, and its stop on a signal (with a stand-in sweep; generalisation.sh's as well)."""
 
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pytest
 from PIL import Image
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce.sh"
@@ -95,3 +99,151 @@ def test_an_unknown_launcher_or_phase_is_named(tmp_path):
     assert result.returncode == 2
     assert result.stderr == "PHASES='learners,plots': 'plots' is not a phase; expected some of learners,arvi,figures\n"
     assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+@pytest.mark.parametrize("variable, accepts", [
+    ("SEEDS", "seeds, e.g. 0,1,2 or 0-19 or 0-4,10, or unset for 0,1,2,3,4"),
+    ("ARVI_SEEDS", "seeds, e.g. 0,1,2 or 0-19 or 0-4,10 (ARVI_MIN_RANGES= for no ARVI), or unset for 0,1,2,3,4,5,6,"),
+    ("SETTINGS", "some of empty1 obstacles1 small2 small3"),
+    ("JOBS", "a number of processes"),
+    ("PHASES", "some of learners,arvi,figures")])
+def test_an_empty_variable_is_refused_not_taken_for_its_default(tmp_path, variable, accepts):
+    result = run_script(tmp_path, **{variable: ""}, OUT="out")
+    assert result.returncode == 2
+    assert result.stderr.startswith(f"{variable} is empty: expected {accepts}") and result.stderr.count("\n") == 1
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+def test_jobs_is_a_whole_number_from_1_on(tmp_path):
+    for jobs in ("0", "two"):
+        result = run_script(tmp_path, JOBS=jobs, OUT="out")
+        assert (result.returncode, result.stderr) == (2, f"JOBS='{jobs}': expected a whole number from 1 on\n")
+    assert not (tmp_path / "out").exists()
+
+
+def test_unfinished_seeds_are_named_and_their_partial_runs_removed(tmp_path):
+    """With resume=auto, the ARVI seeds of a stopped call are evaluated again but for those that finished."""
+    for seed, files in ((0, ("run.mcap", "eval.json")), (1, ("run.mcap",)), (3, ("eval.json",))):
+        for name in files:
+            (tmp_path / f"seed={seed}").mkdir(exist_ok=True)
+            (tmp_path / f"seed={seed}" / name).touch()
+    library = SCRIPT.parent / "lib" / "protocol.sh"
+    todo = subprocess.run(["bash", "-c", f"source {library}; unfinished {tmp_path} 0,1,2,3"],
+                          capture_output=True, text=True, check=True).stdout
+    assert todo == "1,2\n"
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["seed=0", "seed=3"]  # seed=1's partial run went
+
+
+# A stand-in for aia-train -m: like the population launcher, it ends (with status 128 + signal) half a second after
+# a stop signal, once its worker process has ended; the worker ends at once on SIGINT or SIGTERM. Each notes what it
+# got in $FAKE_LOG. The launcher does not forward signals to its worker, so the worker's note shows that the signal
+# reached the sweep's whole process group.
+FAKE_SWEEP = """#!{python}
+import os, signal, subprocess, sys, time
+log = os.environ["FAKE_LOG"]
+def note(text):
+    with open(log, "a") as f:
+        f.write(text + "\\n")
+got = []
+def stop(signum, frame):
+    got.append(signum)
+    note(f"launcher got {{signal.Signals(signum).name}}")
+for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):
+    signal.signal(signum, stop)
+worker = subprocess.Popen([sys.executable, "-c", WORKER, log])
+while not (os.path.exists(log) and "ready" in open(log).read()):
+    time.sleep(0.02)
+note(f"started {{os.getpid()}}")
+while not got:
+    time.sleep(0.02)
+time.sleep(0.5)  # the populations end their episodes and write their checkpoints
+if worker.poll() is None:  # the signal did not reach it (SIGUSR1 to the launcher: the real one forwards it)
+    worker.kill()
+worker.wait()
+note("ended")
+sys.exit(128 + got[0])
+"""
+FAKE_WORKER = """import os, signal, sys, time
+def stop(signum, frame):
+    open(sys.argv[1], "a").write(f"worker got {signal.Signals(signum).name}\\n")
+    sys.exit(128 + signum)
+signal.signal(signal.SIGINT, stop)
+signal.signal(signal.SIGTERM, stop)
+open(sys.argv[1], "a").write(f"worker ready {os.getpid()}\\n")
+time.sleep(30)
+"""
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, ended but not yet reaped, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.parametrize("script, how", [
+    (SCRIPT, "SIGTERM"), (SCRIPT, "SIGINT"), (SCRIPT, "timeout"), (SCRIPT, "SIGUSR1 to the sweep"),
+    (SCRIPT.parent / "generalisation.sh", "SIGTERM")])
+def test_a_stop_signal_stops_the_running_sweep_and_says_how_to_continue(tmp_path, script, how):
+    """SIGTERM or SIGINT (Ctrl-C) to the script, or a timeout, reaches the running sweep's every process once; the
+    script waits for the sweep to end and exits with 128 + signal and one line on how to continue. A sweep stopped
+    by a signal of its own ends the script the same way."""
+    fakes = tmp_path / "bin"
+    fakes.mkdir()
+    (fakes / "aia-train").write_text(FAKE_SWEEP.format(python=sys.executable).replace(
+        "WORKER", repr(FAKE_WORKER)))
+    (fakes / "python3").write_text("#!/bin/sh\necho 100\n")  # machine_speed's matmul rate, at once
+    for fake in fakes.iterdir():
+        fake.chmod(0o755)
+    log = tmp_path / "fake.log"
+    env = {**os.environ, "PATH": f"{fakes}{os.pathsep}{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
+           "FAKE_LOG": str(log), "PHASES": "learners", "OUT": str(tmp_path / "out"),
+           "TRAIN_OVERRIDES": "compile.update=false"}
+    command = ["timeout", "4", "bash", str(script)] if how == "timeout" else ["bash", str(script)]
+    with (tmp_path / "stderr").open("w") as stderr:
+        script_run = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        deadline = time.monotonic() + 20
+        while not (log.exists() and "started" in log.read_text()):
+            assert time.monotonic() < deadline and script_run.poll() is None, (tmp_path / "stderr").read_text()
+            time.sleep(0.05)
+        launcher, worker = fake_processes(log)
+        if how.startswith("SIG"):
+            signum = getattr(signal, how.split()[0])
+            os.kill(launcher if how.endswith("to the sweep") else script_run.pid, signum)
+        else:
+            signum = signal.SIGTERM  # what timeout sends
+        script_run.wait(timeout=20)
+        name = signal.Signals(signum).name
+        lines = (tmp_path / "stderr").read_text().splitlines()
+        assert script_run.returncode == (124 if how == "timeout" else 128 + signum), lines
+        phase = "learners" if script == SCRIPT else "learners on paper_obstacles1"
+        assert lines[-1] == (
+            f"{script.name}: stopped by {name} in phase '{phase}', its running jobs ended: continue it with "
+            'TRAIN_OVERRIDES="compile.update=false resume=auto" and the other variables as they were')
+        notes = log.read_text().splitlines()[2:]
+        if how.endswith("to the sweep"):
+            assert notes[0] == f"launcher got {name}"
+        else:  # each of the sweep's processes got the signal once
+            assert sorted(notes[:-1]) == [f"launcher got {name}", f"worker got {name}"]
+        assert notes[-1] == "ended"  # the script waited for the sweep
+        assert not alive(launcher) and not alive(worker)
+    finally:  # after a failure, nothing of the test is left running
+        if script_run.poll() is None:
+            script_run.kill()
+            script_run.wait()
+        for pid in fake_processes(log):
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+def fake_processes(log: Path) -> list[int]:
+    """The process ids of the fake sweep's launcher and worker that ``log`` names."""
+    if not log.exists():
+        return []
+    words = log.read_text().split()
+    pids = [int(words[words.index("ready") + 1])] if "ready" in words else []
+    if "started" in words:
+        pids = [int(words[words.index("started") + 1]), *pids]
+    return pids
