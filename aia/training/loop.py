@@ -84,6 +84,11 @@ def train_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stop:
     out_dirs = [Path(d) for d in out_dirs]
     with folder_locks(out_dirs, cfgs[0].lock_wait_s):
         checkpoints = _checkpoints(list(cfgs), out_dirs)
+        if checkpoints[0] is not None and checkpoints[0]["state"]["frames"] >= cfgs[0].frames:
+            # finished already (resume=auto over a whole protocol): nothing to train, no log segment, no checkpoint
+            print(f"finished already at frame {checkpoints[0]['state']['frames']} (frames={cfgs[0].frames}): "
+                  "nothing to train; raise frames to train on")
+            return [TrainingState(**checkpoint["state"]) for checkpoint in checkpoints]
         loggers: list[Logger | None] = []
         try:
             loggers += [make_logger(cfg, out_dir, resumed_after_ns=checkpoint["saved_at_ns"] if checkpoint else None)

@@ -74,6 +74,12 @@ def test_a_signal_ends_the_episode_then_checkpoints_and_resume_auto_continues_on
         assert joined.scalars(topic).frames.tolist() == alone.scalars(topic).frames.tolist()
     assert joined.scalars("eval/score").values.tolist() == pytest.approx(alone.scalars("eval/score").values, rel=1e-5)
     assert find_runs([str(tmp_path / "run")]) == [tmp_path / "run" / "run.mcap"]  # one run, not two
+    # continued once more when finished (resume=auto over a whole protocol): nothing trained, written or lost
+    saved = (tmp_path / "run" / "checkpoints" / "last.pt").stat().st_mtime_ns
+    again = train(_config(*LOGGED, "frames=240", "resume=auto"), tmp_path / "run")
+    assert "finished already at frame 240 (frames=240): nothing to train" in capsys.readouterr().out
+    assert again == resumed and not (tmp_path / "run" / "run.2.mcap").exists()
+    assert (tmp_path / "run" / "checkpoints" / "last.pt").stat().st_mtime_ns == saved
 
 
 def test_resume_auto_without_a_checkpoint_starts_fresh(tmp_path):
