@@ -182,6 +182,10 @@ def alive(pid: int) -> bool:
         return False
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("script, how", [
     (SCRIPT, "SIGTERM"), (SCRIPT, "SIGINT"), (SCRIPT, "timeout"), (SCRIPT, "SIGUSR1 to the sweep"),
     (SCRIPT.parent / "generalisation.sh", "SIGTERM")])
@@ -202,7 +206,10 @@ def test_a_stop_signal_stops_the_running_sweep_and_says_how_to_continue(tmp_path
            "TRAIN_OVERRIDES": "compile.update=false"}
     command = ["timeout", "4", "bash", str(script)] if how == "timeout" else ["bash", str(script)]
     with (tmp_path / "stderr").open("w") as stderr:
-        script_run = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr)
+        # with SIGINT as a terminal leaves it: a shell started with SIGINT ignored (a CI job run in the background)
+        # cannot trap it, and passes that on to this script
+        script_run = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr,
+                                      preexec_fn=_default_sigint)
     try:
         deadline = time.monotonic() + 20
         while not (log.exists() and "started" in log.read_text()):
