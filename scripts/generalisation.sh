@@ -33,7 +33,7 @@
 # $OUT/evals/<map>/<trained on>/<method=...,seed=...> (an evaluation already written is kept: a stopped call
 # goes on where it stopped), ARVI to $OUT/arvi/<map>/seed=<seed>.
 set -euo pipefail
-# given, seed_list, parse_phases, unfinished, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
+# given, seed_list, parse_phases, unfinished, resuming, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
 # shellcheck source-path=SCRIPTDIR source=lib/protocol.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
@@ -73,8 +73,6 @@ done
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
 read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
-RESUME=""  # resume=auto: the ARVI runs a stopped call finished are kept, its others evaluated again
-if [[ " ${TRAIN_EXTRA[*]} " == *" resume=auto "* ]]; then RESUME=1; fi
 
 mkdir -p "$OUT/tables"
 OUT_ABS=$(cd "$OUT" && pwd)
@@ -123,7 +121,7 @@ for map in ${RUN_PHASE[arvi]:+$MAPS}; do
   env=$map
   if [[ "$map" == obstacles4 ]]; then env=obstacles1; fi  # the paper's setting 2 is obstacles4
   pending_seeds=$ARVI_SEED_LIST
-  if [[ -n "$RESUME" ]]; then pending_seeds=$(unfinished "$OUT/arvi/$map" "$ARVI_SEED_LIST"); fi
+  if resuming; then pending_seeds=$(unfinished "$OUT/arvi/$map" "$ARVI_SEED_LIST"); fi
   if [[ -z "$pending_seeds" ]]; then echo "-- every run is there already"; continue; fi
   run aia-eval -m hydra/launcher=population hydra.launcher.split_to_fill=true "hydra.launcher.n_jobs=$JOBS" \
     policy=arvi "env=$env" "seed=$pending_seeds" "episodes=$ARVI_EPISODES" threads=1 \

@@ -62,7 +62,7 @@
 # with which the learner runs already there continue (a finished run stays as it is) and the ARVI runs already
 # finished are kept.
 set -euo pipefail
-# given, seed_list, parse_phases, unfinished, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
+# given, seed_list, parse_phases, unfinished, resuming, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
 # shellcheck source-path=SCRIPTDIR source=lib/protocol.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
@@ -116,8 +116,6 @@ fi
 FRAMES_OVERRIDE=()
 if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
 read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
-RESUME=""  # resume=auto: the ARVI runs a stopped call finished are kept, its others evaluated again
-if [[ " ${TRAIN_EXTRA[*]} " == *" resume=auto "* ]]; then RESUME=1; fi
 
 declare -A WHERE=(
   [empty1]="--where env.map=empty"
@@ -166,7 +164,7 @@ for min_range in ${RUN_PHASE[arvi]:+$ARVI_MIN_RANGES}; do
   declare -A PENDING=()
   for setting in "${SETTING_LIST[@]}"; do
     pending_seeds=$ARVI_SEED_LIST
-    if [[ -n "$RESUME" ]]; then pending_seeds=$(unfinished "$OUT/$setting/$name" "$ARVI_SEED_LIST"); fi
+    if resuming; then pending_seeds=$(unfinished "$OUT/$setting/$name" "$ARVI_SEED_LIST"); fi
     if [[ -n "$pending_seeds" ]]; then PENDING[$pending_seeds]+="${PENDING[$pending_seeds]:+,}$setting"; fi
   done
   if (( ${#PENDING[@]} == 0 )); then echo "-- every run is there already"; fi

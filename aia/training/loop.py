@@ -129,8 +129,7 @@ def _train(cfgs: list[DictConfig], out_dirs: list[Path], loggers: list[Logger | 
         keep_freed_memory()
     population, shared, scores = build_population(cfgs, loggers, checkpoints)
     run = _Run(out_dirs, loggers, shared, scores, population)
-    if cfg.frames > shared.frames:
-        _loop(population, run, stop)
+    _loop(population, run, stop)  # a finished run never comes here (train_population)
     return run.states()
 
 

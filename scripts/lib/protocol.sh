@@ -120,11 +120,19 @@ for signal in INT TERM USR1 HUP; do
 done
 unset signal
 
+# resuming: whether TRAIN_OVERRIDES holds resume=auto (a stopped protocol continued)
+resuming() {
+  local word words
+  read -r -a words <<< "${TRAIN_OVERRIDES:-}"
+  for word in "${words[@]}"; do if [[ "$word" == resume=auto ]]; then return 0; fi; done
+  return 1
+}
+
 # stopped SIGNAL: the protocol's one line on a stop (to stderr), then exit with 128 + SIGNAL: TRAIN_OVERRIDES with
 # resume=auto continues it (the learners from their checkpoints; the evaluations it had not finished run again)
 stopped() {
   local resume="${TRAIN_OVERRIDES:+$TRAIN_OVERRIDES }resume=auto" where=""
-  if [[ " ${TRAIN_OVERRIDES:-} " == *" resume=auto "* ]]; then resume=$TRAIN_OVERRIDES; fi
+  if resuming; then resume=$TRAIN_OVERRIDES; fi
   if [[ -n "$phase_name" ]]; then where=" in phase '${phase_name%%:*}'"; fi
   echo "$(basename "$0"): stopped by SIG$1$where, its running jobs ended: continue it with" \
     "TRAIN_OVERRIDES=\"$resume\" and the other variables as they were$stop_note" >&2
