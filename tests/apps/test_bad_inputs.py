@@ -127,7 +127,7 @@ def test_eval_rejects_bad_input_in_one_line(not_a_checkpoint, tmp_path, monkeypa
         (["policy=arvi", "device=cuda:7"], ["device='cuda:7'", "CUDA"]),
         (["policy=arvi", "planner.horizon=0"], ["planner.horizon=0: expected an integer >= 1"]),
         (["policy=arvi", "planner.horizon=abc"], ["planner.horizon='abc': expected an integer >= 1"]),
-        (["policy=arvi", "planner.min_range=-2"], ["planner.min_range=-2.0: expected a number >= 0 (metres)"]),
+        (["policy=arvi", "planner.min_range=-2"], ["planner.min_range=-2.0: expected a number >= 0"]),
         (["policy=arvi", "env.num_targets=0"], ["env.num_targets=0", ">= 1"]),
         (["policy=arvi", "planner=psychic"], ["planner/psychic", "arvi"]),
         (["policy=pursuit", "planner.horizon=3"], ["planner.horizon='3'", "policy=pursuit"]),
