@@ -6,7 +6,10 @@ cannot compose: an unknown group option or key, a value of the wrong type for th
 malformed override, a run folder Hydra cannot make or write) ends the app with one line on stderr,
 ``<prog>: error: <key>=<value>: expected <allowed>``, and exit status 2. A run that fails for a reason outside
 its config (:class:`~aia.config.errors.RunFailed`: a file it could not write, a run folder in use, a sweep job whose
-process died, this one after the other jobs) ends it with one line and exit status 1. Any other exception is an
+process died, this one after the other jobs) ends it with one line and exit status 1. A stop signal (Ctrl-C,
+SIGTERM, SIGUSR1) ends a job at once with one line and exit status 128 + signal (:class:`~aia.config.errors.Stopped`;
+its run log is marked stopped), except while aia-train's loop runs, which ends at its episode's end with its
+checkpoints (:mod:`aia.runtime.stopping`). Any other exception is an
 internal error and keeps its full traceback. ``--debug`` (taken off the command line) or ``HYDRA_FULL_ERROR=1`` keeps
 the traceback of invalid input too.
 """
@@ -23,14 +26,16 @@ from pathlib import Path
 from typing import Any
 
 import hydra
+from hydra.core.hydra_config import HydraConfig
 from hydra.errors import ConfigCompositionException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from aia.config.composing import composition_error
-from aia.config.errors import ConfigError, RunFailed, one_line
+from aia.config.errors import ConfigError, RunFailed, Stopped, one_line
 from aia.config.schemas import SCHEMAS
 from aia.runtime.process_exit import freeze_at_exit
+from aia.runtime.stopping import interrupting
 
 COMPOSITION_ERRORS = (ConfigCompositionException, OverrideParseException)
 DEBUG_FLAG = "--debug"
@@ -83,11 +88,17 @@ def hydra_app(prog: str, config_name: str, population: str | None = None
             for library in QUIET_LIBRARIES:  # after Hydra has configured logging
                 logging.getLogger(library).setLevel(logging.WARNING)
             try:
-                return task(cfg)
+                with interrupting():  # aia-train's loop takes the signals over while it runs
+                    return task(cfg)
             except ConfigError as err:  # caught inside the job: Hydra would print a line of its own
                 if debug:
                     raise
                 _exit_with(prog, err)
+            except Stopped as stop:
+                out_dir = HydraConfig.get().runtime.output_dir
+                print(f"{prog}: stopped by {stop} before the end: the run in {out_dir} is unfinished (its log, if "
+                      "it wrote one, is marked stopped)", file=sys.stderr)
+                raise SystemExit(stop.exit_status) from None
             except RunFailed as err:
                 if debug:
                     raise

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aia.apps.summary import written_whole
+from aia.config.errors import Stopped
 from aia.logging.curves import (
     TAIL_FRACTION,
     X_AXES,
@@ -53,6 +55,7 @@ from aia.logging.stats import (
     stats_table,
 )
 from aia.runtime.process_exit import freeze_at_exit
+from aia.runtime.stopping import interrupting
 
 RENDER_FORMATS = (".gif", ".png")
 SUMMARY_KEYS = ("algo", "exploration", "env.map", "env.num_targets", "seed", "frames")
@@ -173,7 +176,8 @@ def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: i
     axes.legend(fontsize="small")
     figure.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(out)
+    with written_whole(out) as temporary:
+        figure.savefig(temporary)
     plt.close(figure)
     return curves
 
@@ -287,14 +291,16 @@ def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: fl
     images = [Image.fromarray(draw(t)) for t in shown]
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".gif":
-        images[0].save(out, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
+        with written_whole(out) as temporary:
+            images[0].save(temporary, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
         return images[0].size
     strip = Image.new("RGB", (size * len(images), size))
     outline = ImageDraw.Draw(strip)
     for i, image in enumerate(images):
         strip.paste(image, (i * size, 0))
         outline.rectangle([i * size, 0, (i + 1) * size - 1, size - 1], outline=BORDER_COLOUR)
-    strip.save(out)
+    with written_whole(out) as temporary:
+        strip.save(temporary)
     return strip.size
 
 
@@ -478,7 +484,7 @@ def run_command(args: argparse.Namespace) -> None:
         rows = scalar_rows(_read_all(args.runs), args.topic)
         if args.csv:
             args.csv.parent.mkdir(parents=True, exist_ok=True)
-            with open(args.csv, "w", newline="") as f:
+            with written_whole(args.csv) as temporary, open(temporary, "w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=["run", "topic", "frame", "seconds", "value"])
                 writer.writeheader()
                 writer.writerows(rows)
@@ -536,10 +542,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as stop:  # --help (0), or a bad option: its one line is printed (2)
         return int(stop.code or 0)
     try:
-        run_command(args)
+        with interrupting():
+            run_command(args)
     except (RunLogError, ValueError, OSError) as err:
         print(f"aia-log: error: {err}", file=sys.stderr)
         return 2
+    except Stopped as stop:  # Ctrl-C or SIGTERM: a file being written is left as it was (written_whole)
+        print(f"aia-log: stopped by {stop}", file=sys.stderr)
+        return stop.exit_status
     return 0
 
 

@@ -20,11 +20,11 @@ from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.config.validation import validate_train_config
 from aia.evaluation import search_objective
 from aia.logging.segments import last_segment
+from aia.runtime.stopping import StopOnSignals
 from aia.runtime.timing import PhaseTimer
 from aia.training import TrainingState, train_population
 from aia.training.checkpoint import CHECKPOINT_NAME
 from aia.training.resuming import resume_path
-from aia.training.stopping import StopOnSignals
 
 
 @hydra_app("aia-train", config_name="train", population="aia.apps.train.train_jobs")  # bad input: one line, exit 2

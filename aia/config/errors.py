@@ -1,9 +1,11 @@
 """The errors the apps report in one line: invalid user input (a config value, a map file, a command-line
-argument; exit status 2) and a run that failed for a reason outside its config (:class:`RunFailed`: a sweep job
-lost with its process, a file that could not be written, a run folder in use; exit status 1)."""
+argument; exit status 2), a run that failed for a reason outside its config (:class:`RunFailed`: a sweep job
+lost with its process, a file that could not be written, a run folder in use; exit status 1), and a run ended by
+a stop signal (:class:`Stopped`; exit status 128 + signal)."""
 
 from __future__ import annotations
 
+import signal
 from typing import Any
 
 
@@ -43,6 +45,25 @@ class WriteFailed(RunFailed):
     def __str__(self) -> str:
         return (f"could not write {self.path} ({self.reason}): make room or fix the folder, then run again "
                 "(aia-train: resume=auto continues from the last whole checkpoint, which is kept)")
+
+
+class Stopped(BaseException):
+    """A run ended at once by a stop signal (SIGINT, SIGTERM, SIGUSR1; :func:`aia.runtime.stopping.interrupting`),
+    where no training loop was there to end it at an episode's end. A ``BaseException``, as ``KeyboardInterrupt``
+    is: no ``except Exception`` takes it for a failure. ``str()`` is the signal's name; the apps exit with
+    :attr:`exit_status`."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(signum)  # the argument: pickling rebuilds it
+
+    def __str__(self) -> str:
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_status(self) -> int:
+        """``128 + signal``, the shell's convention (143 for SIGTERM)."""
+        return 128 + self.signum
 
 
 def os_error_text(error: OSError) -> str:

@@ -64,7 +64,7 @@ from PIL import Image
 from torch import Tensor
 from torchrl.record.loggers import Logger
 
-from aia.config.errors import RunFailed, WriteFailed, one_line, os_error_text
+from aia.config.errors import RunFailed, Stopped, WriteFailed, one_line, os_error_text
 from aia.logging import schemas
 from aia.logging.metadata import STATUS_METADATA, flatten
 from aia.runtime.timing import utc_now
@@ -250,14 +250,15 @@ class MCAPLogger(Logger):
     def shutdown(self, timeout: float | None = None) -> None:
         """Write the summary and the footer, close the file (idempotent). Called while an exception propagates
         (``finally: logger.close()``) on a run not yet marked, it first marks the run: ``stopped`` for Ctrl-C or
-        SIGTERM (``KeyboardInterrupt``, ``SystemExit``), ``failed`` with the error otherwise (a
+        SIGTERM (``KeyboardInterrupt``, ``SystemExit``, or :class:`~aia.config.errors.Stopped` with the signal's
+        name), ``failed`` with the error otherwise (a
         :class:`~aia.config.errors.RunFailed` as its one line, others as ``<type>: <message>``)."""
         if self._service_shutdown:
             return
         error = sys.exc_info()[1]
         if error is not None and not self._status_written:
-            stopped = isinstance(error, (KeyboardInterrupt, SystemExit))
-            reason = (str(error) if isinstance(error, RunFailed) else
+            stopped = isinstance(error, (KeyboardInterrupt, SystemExit, Stopped))
+            reason = (str(error) if isinstance(error, (RunFailed, Stopped)) else
                       f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)
             with contextlib.suppress(WriteFailed):  # a failed log: the status is written as it is cut back
                 self.mark_failed(reason, status="stopped" if stopped else "failed")

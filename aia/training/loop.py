@@ -45,6 +45,7 @@ from aia.evaluation import log_score_summary
 from aia.logging import MCAPLogger
 from aia.modules import PopulationQPolicy
 from aia.runtime.memory import keep_freed_memory
+from aia.runtime.stopping import StopOnSignals
 from aia.runtime.timing import PhaseTimer
 from aia.training.checkpoint import TrainingState, member_checkpoint
 from aia.training.checkpoint_files import save_checkpoints
@@ -54,7 +55,6 @@ from aia.training.members import check_population
 from aia.training.population import Population, build_population
 from aia.training.progress import progress_bar
 from aia.training.resuming import checkpoint_point, load_resumable, resume_path
-from aia.training.stopping import StopOnSignals
 
 # What the loop reads of each collected frame besides the loss's keys: the score's terms (SPEC 9).
 _SCORE_KEY = ("next", "logdet_cov")

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from aia.runtime.stopping import StopOnSignals, interrupting
 from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 from aia.training.members import first_difference, population_signature, population_work
 from aia.training.progress import forwarding
 from aia.training.resuming import resume_point
-from aia.training.stopping import StopOnSignals
 
-__all__ = ["StopOnSignals", "first_difference", "forwarding", "has_checkpoint", "population_signature",
+__all__ = ["StopOnSignals", "first_difference", "forwarding", "has_checkpoint", "interrupting", "population_signature",
            "population_work", "resume_point"]
 
 

@@ -10,7 +10,7 @@ it and the sweep ended in a ``TerminatedWorkerError`` traceback with no job resu
 A worker forwards what its population prints and its training bar's state through its pipe (the launcher
 shows them, :mod:`.display`), so that several populations' bars and lines do not overwrite each other.
 
-Signals (SIGINT, SIGTERM, SIGUSR1: :mod:`aia.training.stopping`) stop a sweep as they stop a solo run. The
+Signals (SIGINT, SIGTERM, SIGUSR1: :mod:`aia.runtime.stopping`) stop a sweep as they stop a solo run. The
 launcher forwards each one it gets to the running workers, since a ``kill PID``, a container's stop or a
 scheduler may signal the launcher alone; a Ctrl-C in a terminal reaches the workers as well, and a worker keeps
 the first signal of each population. Each running population stops at the end of its episode with its
@@ -75,15 +75,19 @@ def run_group(task: str, cfgs: list[dict], out_dirs: list[str], threads: int | N
 def run_stoppable(call: Call) -> tuple[str, object]:
     """Run one population (:func:`run_group`) so that a stop signal ends it rather than the process:
     ``("done", outcome)`` (its results picklable) or ``("stopped", exit status)`` (the task checkpointed and
-    stopped, :func:`aia.apps.train.exit_if_stopped`, or a signal came while no training loop was listening,
-    see :func:`_interrupting`). What a worker process and a population's SLURM job run."""
+    stopped, :func:`aia.apps.train.exit_if_stopped`, or a signal came while no training loop was listening and
+    ended the call at once, :func:`aia.runtime.stopping.interrupting`: a population still being set up, or a
+    task that handles no signals, such as an evaluation). What a worker process and a population's SLURM job
+    run."""
+    from aia.config.errors import Stopped  # see run_in_workers
+
     try:
-        with _interrupting():
+        with training().interrupting():
             outcome = run_group(*call)
     except SystemExit as stop:
         return "stopped", stop.code if isinstance(stop.code, int) else 1
-    except _Signalled as signalled:
-        return "stopped", 128 + signalled.signum
+    except Stopped as stop:
+        return "stopped", stop.exit_status
     return "done", [(ok, _picklable(result)) for ok, result in outcome]
 
 
@@ -222,25 +226,6 @@ def _serve(conn: Connection) -> None:
                 return
     except (KeyboardInterrupt, EOFError):  # interrupted between populations, or the launcher is gone
         return
-
-
-class _Signalled(BaseException):
-    """A stop signal that came while no training loop was listening for one."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signum)
-        self.signum = signum
-
-
-def _interrupting() -> contextlib.AbstractContextManager:
-    """While a worker runs a call, a stop signal raises :class:`_Signalled`: a population still being set up (or
-    a task that handles no signals, such as an evaluation) ends at once. A training loop's own
-    :class:`~aia.training.stopping.StopOnSignals` takes the signals over while it runs (it stops at the end of
-    its episode, with checkpoints) and hands them back when it ends."""
-    def interrupt(signum: int, first: bool) -> None:
-        raise _Signalled(signum)
-
-    return training().StopOnSignals(on_signal=interrupt)
 
 
 class _LauncherPipe:

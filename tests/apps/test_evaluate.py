@@ -1,12 +1,14 @@
 """aia-eval: scores a saved policy, the ARVI planner or belief pursuit reproducibly; names a bad checkpoint or
-policy."""
+policy; a stop signal ends it in one line."""
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -208,3 +210,25 @@ def test_a_map_checkpoint_plays_on_another_map_of_its_layout_and_another_layout_
         assert info.value.code == 2 and len(err.splitlines()) == 1 and err.startswith("aia-eval: error: env"), err
         assert all(word in err for word in words), err
     assert not (tmp_path / "no").exists() or not list((tmp_path / "no").rglob("*.mcap"))
+
+
+def test_a_stop_signal_ends_an_evaluation_in_one_line_with_its_log_marked_stopped(tmp_path):
+    """SIGTERM while ARVI plans (a 60 s plan): one line, exit status 143, the log closed and marked stopped, no
+    eval.json."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "aia.apps.evaluate", "policy=arvi", "env=empty1", "episodes=1", "threads=1",
+         "planner.time_budget=60", f"hydra.run.dir={tmp_path}"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "run.mcap").exists() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.2)
+    assert process.poll() is None, process.stderr.read()
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(timeout=60) == 143
+    lines = process.stderr.read().splitlines()
+    assert lines == [f"aia-eval: stopped by SIGTERM before the end: the run in {tmp_path} is unfinished (its log, "
+                     "if it wrote one, is marked stopped)"]
+    run = read_run(tmp_path / "run.mcap")
+    assert run.complete and run.failure == "stopped: SIGTERM"
+    assert not (tmp_path / "eval.json").exists()

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import re
+import signal
 import subprocess
 import sys
 
@@ -13,6 +15,7 @@ import pytest
 import torch
 from PIL import Image
 
+from aia.apps import log_cli
 from aia.apps.log_cli import main
 from aia.envs import make_env
 from aia.logging import MCAPLogger, SceneRecorder
@@ -63,6 +66,12 @@ def test_reading_commands_start_without_torch(recorded, tmp_path):
         result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
         assert result.returncode == 0, result.stderr[-2000:]
         assert result.stdout.strip().splitlines()[-1] == "[]", command
+
+
+def test_a_stop_signal_ends_a_command_in_one_line(monkeypatch, capsys):
+    monkeypatch.setattr(log_cli, "run_command", lambda args: os.kill(os.getpid(), signal.SIGTERM))
+    assert log_cli.main(["summary", "any.mcap"]) == 128 + signal.SIGTERM
+    assert capsys.readouterr().err == "aia-log: stopped by SIGTERM\n"
 
 
 def test_summary_of_a_truncated_file_says_so(recorded, tmp_path, capsys):

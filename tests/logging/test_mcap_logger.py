@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import time
 
 import pytest
@@ -12,7 +13,7 @@ import yaml
 from mcap.reader import make_reader
 from omegaconf import OmegaConf
 
-from aia.config.errors import WriteFailed
+from aia.config.errors import Stopped, WriteFailed
 from aia.logging import MCAPLogger, mcap_logger, read_run
 from aia.logging.metadata import flatten
 
@@ -155,6 +156,13 @@ def test_an_interrupted_run_says_stopped_and_a_finished_one_has_no_status(tmp_pa
         finally:
             logger.close()
     assert read_run(tmp_path / "a" / "run.mcap").failure == "stopped: KeyboardInterrupt"
+    logger = MCAPLogger("exp", tmp_path / "c")
+    with pytest.raises(Stopped):
+        try:
+            raise Stopped(signal.SIGTERM)
+        finally:
+            logger.close()
+    assert read_run(tmp_path / "c" / "run.mcap").failure == "stopped: SIGTERM"
     logger = MCAPLogger("exp", tmp_path / "b")
     logger.log_scalar("eval/score", 1.0, step=1)
     logger.close()

@@ -19,9 +19,9 @@ from hydra import compose, initialize_config_module
 from aia.config.errors import ConfigError, FolderLocked, WriteFailed
 from aia.config.validation import validate_train_config
 from aia.logging import read_run
+from aia.runtime.stopping import StopOnSignals
 from aia.training import train
 from aia.training.folder_lock import LOCK_NAME, folder_locks
-from aia.training.stopping import StopOnSignals
 
 SMALL = ("env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16", "hidden=[32,32]",
          "logger.record_every_evaluations=0", "seed=2")

@@ -17,9 +17,9 @@ from hydra import compose, initialize_config_module
 from aia.apps.train import report
 from aia.config.errors import ConfigError
 from aia.logging import find_runs, read_run
+from aia.runtime.stopping import StopOnSignals
 from aia.training import train
 from aia.training.resuming import load_resumable, resume_path, resume_point
-from aia.training.stopping import StopOnSignals
 
 SMALL = ("env.max_steps=40", "warmup_frames=100", "eval.episodes=2", "batch_size=16", "hidden=[32,32]",
          "algo=adfq", "exploration=thompson")

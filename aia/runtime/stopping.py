@@ -15,6 +15,8 @@ import threading
 from collections.abc import Callable
 from types import FrameType
 
+from aia.config.errors import Stopped
+
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
 
 
@@ -53,3 +55,14 @@ class StopOnSignals:
     def exit_status(self) -> int:
         """``128 + signal`` once a signal came (the shell's convention), else 0."""
         return 128 + self.signal if self.signal else 0
+
+
+def interrupting() -> StopOnSignals:
+    """A :class:`StopOnSignals` under which a stop signal raises :class:`~aia.config.errors.Stopped` at once: what
+    runs without a loop that could stop at an episode's end (an evaluation, a population being set up) ends
+    there, its ``finally`` clauses marking its logs stopped. A :class:`StopOnSignals` entered inside takes the
+    signals over while it runs and hands them back when it ends."""
+    def interrupt(signum: int, first: bool) -> None:
+        raise Stopped(signum)
+
+    return StopOnSignals(on_signal=interrupt)
