@@ -43,12 +43,20 @@ _NETWORK_ROWS_MULTIPLE = 8
 # rows against 85 ms at once (and 56-57 ms in chunks of 50 or 250 rows), with the same results to the bit.
 _CHUNK_TRANSITIONS = 1250
 
+# Observations (rows x members) the refresh's target network runs on at a time: each call packs every member's
+# weights for MKL's products anew, so the network takes larger chunks than the posterior. Measured (one thread, 40
+# members of 3 x 256, small3, a full buffer, compiled, two runs): the network's rows 184 ms a refresh in chunks of
+# 250 rows against about 280 ms in the posterior's chunks of 31, the refresh 371-390 against 433-465 ms; with 3 x
+# 128 (empty1) 269 against 363 ms; at 10 members no change (111 against 114 ms). The same beliefs to the bit in
+# every case (and in chunks of 62, 125 and all 1,000 rows).
+_NETWORK_CHUNK_TRANSITIONS = 10000
 
-def _chunks(rows: int, members: int) -> list[slice]:
-    """Row ranges of one size (one compiled graph) covering ``rows``: about ``_CHUNK_TRANSITIONS / members`` rows
+
+def _chunks(rows: int, members: int, transitions: int = _CHUNK_TRANSITIONS) -> list[slice]:
+    """Row ranges of one size (one compiled graph) covering ``rows``: about ``transitions / members`` rows
     each, at least ``_MIN_WRITTEN``; the last one ends at ``rows`` and overlaps its predecessor where the size
     does not divide ``rows`` (its overlapping rows are computed twice, to the same values)."""
-    size = min(rows, max(_MIN_WRITTEN, _CHUNK_TRANSITIONS // members))
+    size = min(rows, max(_MIN_WRITTEN, transitions // members))
     starts = list(range(0, rows - size + 1, size))
     if starts[-1] + size < rows:
         starts.append(rows - size)
@@ -203,7 +211,7 @@ class TargetCache:
         if padded != count:
             repeated = torch.arange(padded, device=rows.device) % count
             observations, rows = tuple(leaf[repeated] for leaf in observations), rows[repeated]
-        for chunk in _chunks(padded, members):
+        for chunk in _chunks(padded, members, _NETWORK_CHUNK_TRANSITIONS):
             chunk_observations = tuple(leaf[chunk].transpose(0, 1).contiguous() for leaf in observations)
             values = self._beliefs(self.loss, self._observation_keys, _rows_dynamic(chunk_observations),
                                    self._params)

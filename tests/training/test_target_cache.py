@@ -40,6 +40,11 @@ def test_refresh_chunks_have_one_size_and_cover_the_rows(rows, members, expected
     assert [(chunk.start, chunk.stop) for chunk in _chunks(rows, members)] == expected
 
 
+def test_the_network_takes_larger_chunks_than_the_posterior():
+    network = [(chunk.start, chunk.stop) for chunk in _chunks(1000, 40, target_cache._NETWORK_CHUNK_TRANSITIONS)]
+    assert network == [(0, 250), (250, 500), (500, 750), (750, 1000)] and len(_chunks(1000, 40)) == 33
+
+
 @pytest.mark.parametrize("inner_dtype, chunk_transitions, written", [("float32", None, 1), ("bfloat16", 20, 1),
                                                                     ("float32", None, 5)])
 def test_sampled_targets_are_the_losss_own_through_writes_and_target_copies(monkeypatch, inner_dtype,
