@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -19,6 +18,7 @@ from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner, evaluate_sc
 from aia.apps.rollout import score_policy
 from aia.logging import read_run
 from aia.training import train
+from tests.apps.test_bad_inputs import run_app
 from tests.training.test_population import MAP_OBSERVATION
 
 
@@ -212,23 +212,19 @@ def test_a_map_checkpoint_plays_on_another_map_of_its_layout_and_another_layout_
     assert not (tmp_path / "no").exists() or not list((tmp_path / "no").rglob("*.mcap"))
 
 
-def test_a_stop_signal_ends_an_evaluation_in_one_line_with_its_log_marked_stopped(tmp_path):
-    """SIGTERM while ARVI plans (a 60 s plan): one line, exit status 143, the log closed and marked stopped, no
-    eval.json."""
-    process = subprocess.Popen(
-        [sys.executable, "-m", "aia.apps.evaluate", "policy=arvi", "env=empty1", "episodes=1", "threads=1",
-         "planner.time_budget=60", f"hydra.run.dir={tmp_path}"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-    )
-    deadline = time.monotonic() + 120
-    while not (tmp_path / "run.mcap").exists() and time.monotonic() < deadline and process.poll() is None:
-        time.sleep(0.2)
-    assert process.poll() is None, process.stderr.read()
-    process.send_signal(signal.SIGTERM)
-    assert process.wait(timeout=60) == 143
-    lines = process.stderr.read().splitlines()
-    assert lines == [f"aia-eval: stopped by SIGTERM before the end: the run in {tmp_path} is unfinished (its log, "
-                     "if it wrote one, is marked stopped)"]
-    run = read_run(tmp_path / "run.mcap")
+def test_a_stop_signal_ends_an_evaluation_in_one_line_with_its_log_marked_stopped(tmp_path, monkeypatch, capsys):
+    """SIGTERM while the evaluation runs (in-process: the signal sent from inside its rollout): one line, exit
+    status 143, the log closed and marked stopped, no eval.json."""
+    def signalled(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("the signal did not stop the evaluation")
+
+    monkeypatch.setattr(evaluate_app, "evaluate_scripted_seeds", signalled)
+    code, err = run_app(evaluate_app.main, ["policy=pursuit", "env=empty1", "episodes=1"], tmp_path, monkeypatch,
+                        capsys)
+    run_dir = tmp_path / "run"
+    assert code == 143 and err == (f"aia-eval: stopped by SIGTERM before the end: the run in {run_dir} is "
+                                   "unfinished (its log, if it wrote one, is marked stopped)\n")
+    run = read_run(run_dir / "run.mcap")
     assert run.complete and run.failure == "stopped: SIGTERM"
-    assert not (tmp_path / "eval.json").exists()
+    assert not (run_dir / "eval.json").exists()
