@@ -122,6 +122,7 @@ def test_training_with_the_cache_is_training_without_it_bit_for_bit(tmp_path, mo
                  "hidden=[32,32]", "buffer_size=64", "target_update_interval=20", "logger=none", *switches, *setting)
     cfgs = [_config(*overrides, f"method={method}", f"seed={s}") for s in (3, 4)]
     monkeypatch.setattr(target_cache, "_CHUNK_TRANSITIONS", 50)  # the refresh in chunks of 25 rows, overlapping
+    monkeypatch.setattr(target_cache, "_NETWORK_CHUNK_TRANSITIONS", 50)  # its network's too
 
 
     def final_parameters(name: str) -> list[dict[str, torch.Tensor]]:
