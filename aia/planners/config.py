@@ -69,8 +69,6 @@ def validate(cfg: ARVIConfig) -> None:
 def to_arvi_config(cfg: DictConfig | ARVIConfig | dict) -> ARVIConfig:
     """A validated :class:`ARVIConfig` from a composed ``planner`` node; a misspelt field or a value of the wrong
     type is a :class:`~aia.config.errors.ConfigError` naming the field, worded as the apps word them."""
-    from aia.config.validation import keys_allowed  # the validation layer checks planner configs through here
-
     if isinstance(cfg, ARVIConfig):
         return cfg
     try:
@@ -80,6 +78,8 @@ def to_arvi_config(cfg: DictConfig | ARVIConfig | dict) -> ARVIConfig:
         given = OmegaConf.to_container(OmegaConf.create(cfg))
         check = declared_check(ARVIConfig, key) if key else None
         if check is None:
+            from aia.config.validation import keys_allowed  # it checks planner configs through this module
+
             names = [item.name for item in fields(ARVIConfig)]
             raise ConfigError(f"planner.{key}" if key else "planner", given.get(key, given),
                               keys_allowed(names, "planner", key)) from None
