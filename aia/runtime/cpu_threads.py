@@ -54,9 +54,20 @@ def _find_team_entry():
 
 _TEAM = _find_team_entry()
 # Threads of our own, for a runtime without GOMP_parallel and for a forked child (whose copy of the OpenMP runtime
-# may not be usable): one per torch thread but the caller's, made on first use and kept for the process.
+# may not be usable, unless its parent was a fork server: serve_forks): one per torch thread but the caller's, made
+# on first use and kept for the process.
 _POOL: tuple[int, ThreadPoolExecutor] | None = None
 _FORKED = False
+# Whether this process is a fork server that only imports and forks (:func:`serve_forks`).
+_FORK_SERVER = False
+
+
+def serve_forks() -> None:
+    """Declare this process a fork server that runs no parallel region (a population launcher's, which only
+    imports aia before it forks the workers): the OpenMP runtime its children copy has no team yet, so they run
+    kernels on torch's team as any process does. Their own children count as forked again."""
+    global _FORK_SERVER
+    _FORK_SERVER = True
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:
@@ -69,8 +80,8 @@ def _pool(threads: int) -> ThreadPoolExecutor:
 
 
 def _after_fork() -> None:
-    global _POOL, _FORKED
-    _POOL, _FORKED = None, True
+    global _POOL, _FORKED, _FORK_SERVER
+    _POOL, _FORKED, _FORK_SERVER = None, _FORKED or not _FORK_SERVER, False
 
 
 os.register_at_fork(after_in_child=_after_fork)

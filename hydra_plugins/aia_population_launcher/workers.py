@@ -101,7 +101,7 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], 
     # imported here: Hydra's plugin scan imports this package for every app
     from aia.config.errors import JobFailed
 
-    context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch or thread state
+    context = _worker_context({task for task, *_ in calls})
     pending = list(enumerate(calls))
     running: list[tuple[multiprocessing.Process, Connection, int]] = []  # worker, its pipe, its call's index
     idle: list[tuple[multiprocessing.Process, Connection]] = []
@@ -192,6 +192,16 @@ def _idle_worker(idle: list[tuple[multiprocessing.Process, Connection]]
             return process, conn
         process.join()
     return None
+
+
+def _worker_context(tasks: set[str]) -> multiprocessing.context.BaseContext:
+    """Workers forked from a fork server that imported aia's training stack and the tasks' modules
+    (:mod:`.fork_server`): a fresh interpreter, so no torch or OpenMP threads are forked, and the workers do not
+    each import torch again. The server starts with the first worker and serves this process's later sweeps."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["hydra_plugins.aia_population_launcher.fork_server",
+                                    *sorted(task.rpartition(".")[0] for task in tasks)])
+    return context
 
 
 def _start_worker(context) -> tuple[multiprocessing.Process, Connection]:

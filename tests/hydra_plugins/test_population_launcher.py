@@ -5,6 +5,7 @@ in-process (``main()`` with ``sys.argv`` patched)."""
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 
@@ -178,7 +179,7 @@ def test_a_signal_to_the_launcher_alone_stops_the_running_populations_with_their
     """``kill PID`` (or a container's stop) signals the launcher only: it forwards the signal to the running
     workers, whose populations end their episode, checkpoint and mark their logs stopped; the waiting one never
     starts, and the launcher exits with 143. Both running populations are held at their first episode's end
-    until both are training; then one signals the launcher (its parent) and waits for the forwarded signal."""
+    until both are training; then one signals the launcher and waits for the forwarded signal."""
     at_first_episode_end = (
         "import signal, time\n"
         "from pathlib import Path\n"
@@ -192,7 +193,7 @@ def test_a_signal_to_the_launcher_alone_stops_the_running_populations_with_their
         "        if list(cfgs[0].hidden) == [32]:\n"
         "            while not (flags / 'training24').exists():\n"
         "                time.sleep(0.01)\n"
-        "            os.kill(os.getppid(), signal.SIGTERM)\n"
+        f"            os.kill({os.getpid()}, signal.SIGTERM)\n"  # the launcher: this test's process
         "        time.sleep(2)  # the forwarded signal arrives meanwhile\n"
         "    return end_episodes(self, *args)\n"
         "loop._Run.end_episodes = held")

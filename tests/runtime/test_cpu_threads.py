@@ -1,11 +1,14 @@
 """Tests of aia/runtime/cpu_threads.py: a kernel's chunks cover the batch once, on torch's OpenMP team and on
-threads of our own, with every kind of argument read back as packed; a forked child's calls run; bad arguments are
-refused."""
+threads of our own, with every kind of argument read back as packed; a forked child's calls run, on torch's team when
+its parent was a fork server; bad arguments are refused."""
 
 from __future__ import annotations
 
 import multiprocessing
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -82,6 +85,38 @@ def test_a_forked_child_runs_in_threads_of_its_own():
         assert child.exitcode == 0 and queue.get(timeout=1) == (True, 100)
     finally:
         torch.set_num_threads(previous)
+
+
+# A fresh interpreter that declares itself a fork server (what a population launcher's fork server does) and forks
+# a worker, which forks again: each line says which process, its _FORKED and (the worker) a 2-thread kernel's visits.
+FORK_SERVER = """
+import os
+import sys
+import torch
+from aia.runtime import cpu_threads
+sys.path.insert(0, "tests/runtime")
+from test_cpu_threads import _run  # as pytest names it: numba's cached kernel names its module
+cpu_threads.serve_forks()
+torch.set_num_threads(2)
+if os.fork() == 0:
+    print("worker", cpu_threads._FORKED, int(_run(1000, 7, team=None)[0].sum()), flush=True)
+    if os.fork() == 0:
+        print("its child", cpu_threads._FORKED, flush=True)
+        os._exit(0)
+    os.wait()
+    os._exit(0)
+os.wait()
+print("server", cpu_threads._FORKED, flush=True)
+"""
+
+
+def test_a_fork_servers_child_runs_on_the_team_and_its_own_children_do_not():
+    """The server ran no parallel region, so its child's copy of the OpenMP runtime is as good as a fresh one;
+    the child's own children are forked from a process that ran the team."""
+    root = Path(__file__).resolve().parents[2]
+    result = subprocess.run([sys.executable, "-c", FORK_SERVER], cwd=root, capture_output=True, text=True,
+                            timeout=120)
+    assert result.stdout.splitlines() == ["worker False 1000", "its child True", "server False"], result.stderr[-2000:]
 
 
 def test_bad_arguments_are_refused():
