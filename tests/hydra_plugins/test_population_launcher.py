@@ -18,6 +18,7 @@ from hydra.core.utils import JobStatus
 
 import aia.apps.train as train_app
 from aia.logging import read_run
+from aia.runtime import cpu_threads
 
 LAUNCHER = "hydra_plugins.aia_population_launcher.population_launcher.PopulationLauncher"
 SMALL = ["frames=130", "warmup_frames=100", "env.max_steps=30", "eval.episodes=2", "batch_size=16",
@@ -58,6 +59,8 @@ def _multirun(tmp_path, monkeypatch, capsys, *overrides: str, exit_code: int | N
         assert info.value.code == exit_code
     else:
         train_app.main()
+    # only the workers' fork server is marked as one: a fork of the launcher's own process still counts as forked
+    assert not cpu_threads._FORK_SERVER
     return returns, capsys.readouterr().out
 
 
