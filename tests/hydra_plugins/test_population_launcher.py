@@ -140,14 +140,17 @@ def _task_module(tmp_path, monkeypatch, name: str, body: str) -> str:
     (tmp_path / f"{name}.py").write_text("import os\nfrom aia.apps.train import train_jobs\n\n\n"
                                          f"def jobs(cfgs, out_dirs):\n    {lines}\n"
                                          "    return train_jobs(cfgs, out_dirs)\n")
-    monkeypatch.syspath_prepend(str(tmp_path))  # a spawned worker starts with this process's sys.path
+    monkeypatch.syspath_prepend(str(tmp_path))  # a worker is handed this process's sys.path as it starts
     return f"{name}.jobs"
 
 
 def test_a_population_whose_process_dies_fails_alone_and_the_others_train(tmp_path, monkeypatch, capsys):
     """A worker process that dies (here ``os._exit(9)``; the OOM killer's SIGKILL alike) fails its own
-    population's jobs, named in one line; the population in the other worker trains to its end."""
-    task = _task_module(tmp_path, monkeypatch, "dying", "if list(cfgs[0].hidden) == [24]:\n    os._exit(9)")
+    population's jobs, named in one line; the population in the other worker trains to its end. The workers are
+    forked from the fork server, which ran no parallel region: they run kernels on torch's OpenMP team."""
+    body = ("if list(cfgs[0].hidden) == [24]:\n    os._exit(9)\n"
+            "from aia.runtime import cpu_threads\n(out_dirs[0].parent / 'forked').write_text(str(cpu_threads._FORKED))")
+    task = _task_module(tmp_path, monkeypatch, "dying", body)
     jobs = _jobs(tmp_path, a=(0, [16]), b=(1, [16]), c=(2, [24]), d=(3, [24]))
     returns, out = _multirun(tmp_path, monkeypatch, capsys, *jobs, f"hydra.launcher.task={task}",
                              "hydra.launcher.progress_every_s=0", exit_code=1, processes=2)
@@ -156,6 +159,7 @@ def test_a_population_whose_process_dies_fails_alone_and_the_others_train(tmp_pa
     assert died in str(returns[2]._return_value) and died in str(returns[3]._return_value)
     assert re.search(r"population launcher: \d/2 done after 0:\d\d: jobs 2-3 \(2 of 2 failed\)\n", out)
     assert all(read_run(tmp_path / "sweep" / str(job) / "run.mcap").complete for job in (0, 1))
+    assert (tmp_path / "sweep" / "forked").read_text() == "False"
     # the worker's lines and its bar's progress reach the launcher, which prints them whole
     assert re.search(r"\ntraining dqn \(egreedy\) on .* as a population of 2, seeds \[0, 1\]\n", out)
     assert re.search(r"\npopulation launcher: jobs 0-1: dqn x2 130/130 frames \(100%\), [\d,]+ frames/s", out)
