@@ -101,7 +101,7 @@ def run_in_workers(calls: Sequence[Call], processes: int, names: Sequence[str], 
     # imported here: Hydra's plugin scan imports this package for every app
     from aia.config.errors import JobFailed
 
-    context = _worker_context({task for task, *_ in calls})
+    context = _worker_context()
     pending = list(enumerate(calls))
     running: list[tuple[multiprocessing.Process, Connection, int]] = []  # worker, its pipe, its call's index
     idle: list[tuple[multiprocessing.Process, Connection]] = []
@@ -194,14 +194,14 @@ def _idle_worker(idle: list[tuple[multiprocessing.Process, Connection]]
     return None
 
 
-def _worker_context(tasks: set[str]) -> multiprocessing.context.BaseContext:
-    """Workers forked from a fork server, a fresh interpreter that imports aia's training stack and the tasks'
-    modules and then only forks (:mod:`aia.runtime.fork_server`): no torch or OpenMP threads are forked, and each
-    worker starts with torch and TorchRL imported (spawned, each imported them itself: 4.5 s of CPU a worker on
-    the 2-core CPU). The server starts with the first worker and serves this process's later sweeps."""
+def _worker_context() -> multiprocessing.context.BaseContext:
+    """Workers forked from a fork server, a fresh interpreter that imports aia's training stack and then only
+    forks (:mod:`aia.runtime.fork_server`): no torch or OpenMP threads are forked, and each worker starts with
+    torch and TorchRL imported (spawned, each imported them itself: 4.5 s of CPU a worker on the 2-core CPU). The
+    server starts with the first worker and serves this process's later sweeps; a worker imports its task's
+    module itself, so that a task edited between two sweeps runs as it now is."""
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["aia.training.sweeps", *sorted(task.rpartition(".")[0] for task in tasks),
-                                    "aia.runtime.fork_server"])
+    context.set_forkserver_preload(["aia.training.sweeps", "aia.runtime.fork_server"])
     return context
 
 
