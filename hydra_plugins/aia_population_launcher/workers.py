@@ -199,7 +199,10 @@ def _worker_context() -> multiprocessing.context.BaseContext:
     forks (:mod:`aia.runtime.fork_server`): no torch or OpenMP threads are forked, and each worker starts with
     torch and TorchRL imported (spawned, each imported them itself: 4.5 s of CPU a worker on the 2-core CPU). The
     server starts with the first worker and serves this process's later sweeps; a worker imports its task's
-    module itself, so that a task edited between two sweeps runs as it now is."""
+    module itself, so that a task edited between two sweeps runs as it now is. Spawned workers where the platform
+    has no fork server (Windows)."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(["aia.training.sweeps", "aia.runtime.fork_server"])
     return context

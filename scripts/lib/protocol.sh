@@ -105,7 +105,9 @@ phase() {
 # launcher) ends the script the same way.
 stop_signal=""
 stop_note=""  # a script's addition to the line on a stop
-# on_stop SIGNAL: the trap of the stop signals; a further one while it waits is forwarded in turn
+# on_stop SIGNAL: the trap of the stop signals; a further Ctrl-C while it waits is forwarded in turn (it kills the
+# running populations), a further SIGTERM, SIGUSR1 or SIGHUP adds nothing to the first (timeout signals the script,
+# then its process group: twice)
 on_stop() {
   local pid forward=$1
   if [[ "$1" == HUP ]]; then forward=TERM; fi
@@ -115,8 +117,10 @@ on_stop() {
   stopped "$stop_signal"
 }
 for signal in INT TERM USR1 HUP; do
+  # the repeat's test in the trap itself: bash 5.2 cannot return from a function called by a trap that interrupted
+  # the same function ("pop_var_context: head of shell_variables not a function context")
   # shellcheck disable=SC2064  # the signal's name, now
-  trap "on_stop $signal" "$signal"
+  trap "if [[ -z \$stop_signal || $signal == INT ]]; then on_stop $signal; fi" "$signal"
 done
 unset signal
 

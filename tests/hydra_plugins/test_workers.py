@@ -1,11 +1,13 @@
-"""The population launcher's workers: a stop signal while no training loop listens ends the call at once, and a
-worker whose launcher is gone stops as on a SIGTERM instead of failing on the broken pipe."""
+"""The population launcher's workers: forked from a fork server that preloads aia's training stack (spawned where
+the platform has none), a stop signal while no training loop listens ends the call at once, and a worker whose
+launcher is gone stops as on a SIGTERM instead of failing on the broken pipe."""
 
 from __future__ import annotations
 
 import multiprocessing
 import os
 import signal
+from multiprocessing import forkserver
 
 from hydra_plugins.aia_population_launcher import workers
 
@@ -27,3 +29,12 @@ def test_a_worker_whose_launcher_is_gone_stops_as_on_a_sigterm(monkeypatch, caps
         pipe.send(("progress", {}))
     assert pipe.gone and sent == [(os.getpid(), signal.SIGTERM)]  # once; the rest is dropped
     assert "the launcher is gone: this population stops as on a SIGTERM" in capsys.readouterr().err
+
+
+def test_workers_fork_from_a_server_preloading_the_training_stack_or_spawn_without_one(monkeypatch):
+    context = workers._worker_context()
+    assert context.get_start_method() == "forkserver"
+    # the server's mark last: aia.runtime.fork_server marks the process that has imported the rest
+    assert forkserver._forkserver._preload_modules == ["aia.training.sweeps", "aia.runtime.fork_server"]
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    assert workers._worker_context().get_start_method() == "spawn"
