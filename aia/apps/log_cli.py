@@ -66,7 +66,8 @@ def _status(run: RunLog) -> str:
         return "complete"
     parts = [run.failure] if run.failure else []
     if not run.complete:
-        parts.append(f"truncated: {len(run.messages)} messages recovered ({run.problem})")
+        read = "" if run.only_topics is None else f"{', '.join(sorted(run.only_topics))} "
+        parts.append(f"truncated: {len(run.messages)} {read}messages recovered ({run.problem})")
     parts += run.damage
     return "; ".join(parts)
 
@@ -225,7 +226,7 @@ def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[s
                          "pool into one baseline) or one per --baseline")
     baselines = []
     for label, group in groups:
-        runs = _with_metric(select_runs(_read_all(group), where), metric)
+        runs = _with_metric(select_runs(_read_all(group, [metric]), where), metric)
         if not runs:
             raise ValueError(f"no {label or 'baseline'} run in {group} matches --where {list(where)} and has "
                              f"{metric!r}")
@@ -311,8 +312,10 @@ def _episode_index(text: str) -> int:
         raise ValueError(f"--episode {text!r} must be an episode index, 'first' or 'last'") from None
 
 
-def _read_all(patterns: Sequence[str]) -> list[RunLog]:
-    runs = [read_run(path) for path in find_runs(list(patterns))]
+def _read_all(patterns: Sequence[str], only_topics: Sequence[str] | None = None) -> list[RunLog]:
+    """The runs of ``patterns`` (only their messages of ``only_topics``: :func:`read_run`), with a warning for each
+    one that is not complete."""
+    runs = [read_run(path, only_topics) for path in find_runs(list(patterns))]
     for run in runs:
         if _status(run) != "complete":
             print(f"warning: {run.path}: {_status(run)}", file=sys.stderr)
@@ -323,11 +326,11 @@ def runs_with_metric(patterns: Sequence[str], where: Sequence[str], metric: str)
     """The runs of ``patterns`` that match every ``--where`` and have logged ``metric``; a ValueError when none
     matches, or when none has ``metric`` (naming the scalar topics they have), and a warning for each run left out
     for lack of it while others have it (a run just started)."""
-    runs = select_runs(_read_all(patterns), where)
+    runs = select_runs(_read_all(patterns, [metric]), where)  # only the metric's messages: see read_run
     if not runs:
         raise ValueError(f"no run of {list(patterns)} matches --where {' '.join(where)}")
     if not any(metric in run.scalar_topics() for run in runs):
-        topics = sorted({topic for run in runs for topic in run.scalar_topics()})
+        topics = sorted({topic for run in runs for topic in read_run(run.path).scalar_topics()})
         raise ValueError(f"--metric {metric!r}: no run has logged it; expected a scalar topic of the runs: "
                          f"{', '.join(topics) or 'none yet'}")
     return _with_metric(runs, metric)

@@ -15,6 +15,7 @@ import struct
 import time
 import zlib
 from collections import Counter
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
@@ -85,6 +86,7 @@ class RunLog:
     damage: list[str] = field(default_factory=list)  # what was read around: damaged chunks, a bad data CRC
     problem: str | None = None     # why reading stopped before the footer
     segments: list[Path] = field(default_factory=list)  # later segments joined in (one per resume)
+    only_topics: frozenset[str] | None = None  # the topics whose messages were read (None: all; see read_run)
     _config: dict[str, Any] | None = field(default=None, init=False, repr=False)
 
     @property
@@ -178,13 +180,20 @@ class RunLog:
         return info, frames
 
 
-def read_run(path: str | Path) -> RunLog:
+def read_run(path: str | Path, only_topics: Collection[str] | None = None) -> RunLog:
     """Read every message, metadata record and attachment of the run log at ``path``, joined with its later
-    segments (:mod:`aia.logging.segments`: one per resume) into one history."""
+    segments (:mod:`aia.logging.segments`: one per resume) into one history.
+
+    ``only_topics``: keep only the messages of these topics (``aia-log stats`` and ``plot`` read their metric's).
+    A chunk whose message indexes (written after it) name only other topics is then skipped unread: neither
+    decompressed nor checked but by the data section's CRC-32, which still reports its damage. A 20-seed
+    learner's log of 200 episodes has 335 chunks, 18 of them with an evaluation score, most of the rest recorded
+    scenes: a setting's 80 learner logs and 20 ARVI logs read in 0.41 s for ``eval/score`` against 1.3-1.7 s
+    whole (three reads of each)."""
     path = Path(path)
-    run = _read_file(path)
+    run = _read_file(path, only_topics)
     for segment in later_segments(path):
-        part = _read_file(segment)
+        part = _read_file(segment, only_topics)
         after = int(part.metadata.get("run", {}).get(RESUMED_AFTER_KEY, 0))
         run.messages = [m for m in run.messages if m.log_time <= after] + part.messages
         # the last segment says how the run ended; the latest config is the one in force
@@ -196,8 +205,9 @@ def read_run(path: str | Path) -> RunLog:
     return run
 
 
-def _read_file(path: Path) -> RunLog:
-    """Read every message, metadata record and attachment of the MCAP file at ``path``."""
+def _read_file(path: Path, only_topics: Collection[str] | None = None) -> RunLog:
+    """Read every message (of ``only_topics``, see :func:`read_run`), metadata record and attachment of the MCAP
+    file at ``path``."""
     if path.is_dir():
         raise RunLogError(f"{path}: a folder, expected a run log file (e.g. {path / 'run.mcap'})")
     if not path.is_file():
@@ -206,10 +216,10 @@ def _read_file(path: Path) -> RunLog:
         data = path.read_bytes()
     except OSError as err:
         raise RunLogError(f"{path}: cannot be read ({err.strerror})") from None
-    return _read_records(path, data)
+    return _read_records(path, data, only_topics)
 
 
-def _read_records(path: Path, data: bytes) -> RunLog:
+def _read_records(path: Path, data: bytes, only_topics: Collection[str] | None = None) -> RunLog:
     """The run in ``data`` (a whole file), read in one pass over its records as ``mcap``'s ``StreamReader``
     with CRC checks reads them, but with the hot records parsed here: a message's and a chunk's fixed header by
     one ``struct`` unpack, the message indexes skipped by their length, chunks decompressed by one reused zstd
@@ -217,7 +227,8 @@ def _read_records(path: Path, data: bytes) -> RunLog:
     channels, metadata and attachments (a few per file) are parsed by ``mcap``'s record classes. The same runs
     as ``StreamReader``'s records give, in 4.0 us a message instead of 8.9 (780 logs of tests and a 20-seed
     protocol, 1.6 M messages: 6.4 s against 14.1 s)."""
-    run = RunLog(path, messages=[], complete=False)
+    run = RunLog(path, messages=[], complete=False,
+                 only_topics=None if only_topics is None else frozenset(only_topics))
     walk = _RecordWalk(run)
     try:
         if not data.startswith(_MAGIC):
@@ -241,7 +252,7 @@ _RECORD_HEAD = struct.Struct("<BQ")        # opcode, body length
 _MESSAGE_HEAD = struct.Struct("<HIQQ")     # channel id, sequence, log time, publish time
 _DATA_END = struct.Struct("<I")            # the data section's CRC-32
 _CHUNK_HEAD = struct.Struct("<QQQI")      # first and last log time, uncompressed size, uncompressed CRC-32
-_U32, _U64 = struct.Struct("<I"), struct.Struct("<Q")
+_U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 _ZSTD = zstandard.ZstdDecompressor()
 
 
@@ -250,9 +261,11 @@ class _RecordWalk:
 
     def __init__(self, run: RunLog) -> None:
         self.run = run
+        self.only = run.only_topics
         self.schema_names: dict[int, str] = {}
         self.channels: dict[int, tuple[str, str]] = {}  # channel id -> (topic, schema name)
         self.chunks = 0
+        self.skipped = 0  # chunks skipped unread (only_topics)
         # A damaged chunk takes the schemas and channels first written in it along: the channels whose schema is
         # not known yet, and the messages of channels not known yet, wait for the copies in the summary section.
         self.unresolved_channels: dict[int, tuple[str, int]] = {}  # channel id -> (topic, schema id)
@@ -265,7 +278,7 @@ class _RecordWalk:
                 self.channels.setdefault(channel_id, (topic, self.schema_names[schema_id]))
         for channel_id, log_time, payload in self.pending:
             channel = self.channels.get(channel_id)
-            if channel is not None:
+            if channel is not None and self._kept(channel):
                 self.run.messages.append(LoggedMessage(channel[0], channel[1], log_time, payload))
         self.pending.clear()
 
@@ -278,7 +291,11 @@ class _RecordWalk:
             if opcode == Opcode.MESSAGE:
                 self._message(data, body, end, run.messages)
             elif opcode == Opcode.CHUNK:
-                self._chunk(data, body, end)
+                if self.only is not None and self._nothing_kept(data, end):
+                    self.chunks += 1
+                    self.skipped += 1
+                else:
+                    self._chunk(data, body, end)
             elif opcode == Opcode.METADATA:
                 record = Metadata.read(_stream(data, body, end))
                 run.metadata[record.name] = dict(record.metadata)
@@ -289,8 +306,9 @@ class _RecordWalk:
                 (crc,) = _DATA_END.unpack_from(data, body)
                 actual = zlib.crc32(memoryview(data)[:position]) if crc != 0 else 0
                 if actual != crc and not run.damage:  # (a damaged chunk fails it too, and is named already)
-                    run.damage.append("the data section fails its CRC-32 check: a record outside the chunks (a "
-                                      "schema, channel, metadata or attachment) is damaged")
+                    where = (f"one of the {self.skipped} chunks not read or " if self.skipped else "") + "a record " \
+                        "outside the chunks (a schema, channel, metadata or attachment)"
+                    run.damage.append(f"the data section fails its CRC-32 check: {where} is damaged")
                 # on to the summary section: its schemas and channels repeat those of the data section
             elif opcode == Opcode.FOOTER:
                 run.complete = True
@@ -325,10 +343,32 @@ class _RecordWalk:
             return
         self.run.messages.extend(messages)
 
+    def _kept(self, channel: tuple[str, str]) -> bool:
+        return self.only is None or channel[0] in self.only
+
+    def _nothing_kept(self, data: bytes, position: int) -> bool:
+        """Whether the chunk ending at ``position`` holds no message to keep: the message indexes written right
+        after it name only channels defined before it, of topics not kept (a channel not defined yet may be
+        defined in the chunk itself, which is then read; so is a chunk without indexes)."""
+        indexed = False
+        while position + _RECORD_HEAD.size + _U16.size <= len(data):
+            opcode, length = _RECORD_HEAD.unpack_from(data, position)
+            if opcode != Opcode.MESSAGE_INDEX:
+                break
+            (channel_id,) = _U16.unpack_from(data, position + _RECORD_HEAD.size)
+            channel = self.channels.get(channel_id)
+            if channel is None or self._kept(channel):
+                return False
+            indexed = True
+            position += _RECORD_HEAD.size + length
+        return indexed
+
     def _message(self, data: bytes, body: int, end: int, into: list[LoggedMessage]) -> None:
         channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(data, body)
         channel = self.channels.get(channel_id)
         if channel is not None:
+            if not self._kept(channel):
+                return
             into.append(LoggedMessage(channel[0], channel[1], log_time, data[body + _MESSAGE_HEAD.size:end]))
         else:
             self.pending.append((channel_id, log_time, data[body + _MESSAGE_HEAD.size:end]))

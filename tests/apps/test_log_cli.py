@@ -126,6 +126,7 @@ def test_plot_leaves_out_runs_without_the_metric(tmp_path, capsys):
     assert "algo=adfq: 1 runs, final eval/score 3.0" in captured.out
     assert "m/1/run.mcap: no 'eval/score' yet, left out" in captured.err
     assert "m/2/run.mcap: no 'eval/score' yet, left out" in captured.err
+    assert "m/2/run.mcap: truncated: 0 eval/score messages recovered (file ends early" in captured.err  # all it read
     assert main(["plot", str(tmp_path / "m/1"), "--out", str(tmp_path / "c.png")]) == 2
     assert "--metric 'eval/score': no run has logged it; expected a scalar topic" in capsys.readouterr().err
 

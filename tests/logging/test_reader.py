@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from aia.logging import MCAPLogger, RunLogError, find_runs, read_run
+from aia.logging import MCAPLogger, RunLogError, find_runs, read_run, reader
 
 
 def _chunked_log(path, chunks=6, per_chunk=40, compression="zstd"):
@@ -93,6 +93,71 @@ def test_a_damaged_record_outside_the_chunks_fails_the_data_crc(tmp_path):
     assert run.damage == ["the data section fails its CRC-32 check: a record outside the chunks (a schema, "
                           "channel, metadata or attachment) is damaged"]
     assert len(run.scalars("eval/score").values) == 240
+
+
+def _two_topic_log(path, compression="zstd"):
+    """A log of six chunks (one flush each): the first holds ``eval/score`` and ``train/loss`` (both channels are
+    defined there), then ``train/loss`` alone and ``eval/score`` alone by turns; returns the file and the size after
+    each flush."""
+    logger = MCAPLogger("exp", path, flush_interval_s=3600, compression=compression)
+    logger.log_hparams({"algo": {"name": "dqn"}, "seed": 1})
+    sizes = []
+    for chunk in range(6):
+        topics = ("eval/score", "train/loss") if chunk == 0 else ("train/loss",) if chunk % 2 else ("eval/score",)
+        for i in range(30):
+            for topic in topics:
+                logger.log_scalar(topic, float(chunk * 30 + i), step=chunk * 30 + i)
+        logger.flush()
+        sizes.append((path / "run.mcap").stat().st_size)
+    logger.close()
+    return (path / "run.mcap").read_bytes(), sizes
+
+
+def _decompressions(monkeypatch) -> list[int]:
+    """A list that grows by one at every chunk the reader decompresses."""
+    calls: list[int] = []
+    decompress = reader._decompress
+    monkeypatch.setattr(reader, "_decompress", lambda *args: calls.append(1) or decompress(*args))
+    return calls
+
+
+def test_a_read_of_some_topics_keeps_their_messages_and_skips_the_other_chunks_unread(tmp_path, monkeypatch):
+    _two_topic_log(tmp_path)
+    calls = _decompressions(monkeypatch)
+    whole = read_run(tmp_path / "run.mcap")
+    assert len(calls) == 6 and whole.only_topics is None
+    calls.clear()
+    scores = read_run(tmp_path / "run.mcap", ["eval/score"])
+    assert len(calls) == 3  # chunks 2, 4 and 6 hold train/loss alone: not decompressed
+    assert scores.only_topics == {"eval/score"} and scores.complete and scores.damage == []
+    assert scores.messages == [m for m in whole.messages if m.topic == "eval/score"]
+    assert scores.scalars("eval/score").values.tolist() == [float(i) for i in (*range(30), *range(60, 90),
+                                                                                *range(120, 150))]
+    assert scores.metadata == whole.metadata and scores.attachments == whole.attachments
+    assert scores.config_value("algo") == "dqn"
+
+
+def test_a_damaged_chunk_skipped_unread_still_fails_the_data_crc(tmp_path):
+    data, sizes = _two_topic_log(tmp_path, compression="none")
+    damaged = bytearray(data)
+    damaged[sizes[0] + 400] ^= 0x01  # inside the second chunk: train/loss alone
+    (tmp_path / "bad.mcap").write_bytes(bytes(damaged))
+    whole = read_run(tmp_path / "bad.mcap")
+    assert len(whole.damage) == 1 and whole.damage[0].startswith("chunk 2 (logged ")
+    scores = read_run(tmp_path / "bad.mcap", ["eval/score"])
+    assert scores.damage == ["the data section fails its CRC-32 check: one of the 3 chunks not read or a record "
+                             "outside the chunks (a schema, channel, metadata or attachment) is damaged"]
+    assert scores.messages == [m for m in whole.messages if m.topic == "eval/score"]
+
+
+@pytest.mark.parametrize("fraction", [0.1, 0.3, 0.5, 0.7, 0.9, 0.999])
+def test_a_read_of_some_topics_of_a_cut_file_keeps_what_the_whole_read_keeps(tmp_path, fraction):
+    data, _ = _two_topic_log(tmp_path)
+    (tmp_path / "cut.mcap").write_bytes(data[:int(len(data) * fraction)])
+    whole = read_run(tmp_path / "cut.mcap")
+    scores = read_run(tmp_path / "cut.mcap", ["eval/score"])
+    assert scores.messages == [m for m in whole.messages if m.topic == "eval/score"]
+    assert scores.complete == whole.complete and scores.problem == whole.problem is not None
 
 
 def test_files_that_are_not_logs(tmp_path):
