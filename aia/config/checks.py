@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from numbers import Integral, Real
 from typing import Any, Protocol
 
-import torch
 from omegaconf import ListConfig, OmegaConf
 
 from aia.config.errors import ConfigError
@@ -99,6 +98,10 @@ class Device:
         return "a torch device such as cpu, cuda or cuda:0"
 
     def __call__(self, key: str, value: Any) -> None:
+        if value == "cpu":  # the default: the apps' --help and refusals of other keys answer without loading torch
+            return
+        import torch
+
         try:
             device = torch.device(value)
         except (RuntimeError, TypeError):

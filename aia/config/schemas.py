@@ -27,7 +27,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
 
 from aia.config.checks import Check, Choice, ConvLayers, Device, Flag, NamesFrom, Number, Widths
-from aia.logging.mcap_logger import COMPRESSIONS
+from aia.logging.metadata import COMPRESSIONS
 
 LOSS_FUNCTIONS = ("smooth_l1", "l2", "l1")
 EVAL_POLICIES = ("checkpoint", "arvi", "pursuit")

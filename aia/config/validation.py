@@ -23,9 +23,8 @@ from omegaconf import DictConfig, OmegaConf
 from aia.config.checks import check_choice, require
 from aia.config.errors import ConfigError
 from aia.config.schemas import EvalConfig, RolloutConfig, TrainConfig
-from aia.envs.config import TrackingConfig
-from aia.envs.factory import to_tracking_config
-from aia.planners import ARVIConfig, to_arvi_config
+from aia.envs.config import TrackingConfig, to_tracking_config
+from aia.planners.config import ARVIConfig, to_arvi_config
 
 # The apps' fields typed Any that hold a sub-config with a schema of its own.
 SUB_SCHEMAS: dict[str, type] = {"env": TrackingConfig, "planner": ARVIConfig}
@@ -180,10 +179,10 @@ def overrides_group(overrides: Sequence[str], group: str) -> list[str]:
 
 def check_checkpoint_file(key: str, path: Path) -> None:
     """``path`` is an existing, undamaged checkpoint file (every record's CRC-32 checked)."""
+    require(path.is_file(), key, str(path), "an existing checkpoint .pt file written by aia-train")
     from aia.training.checkpoint import PREVIOUS_CHECKPOINT_NAME  # imported here: aia.training imports this module
     from aia.training.checkpoint_files import checkpoint_damage
 
-    require(path.is_file(), key, str(path), "an existing checkpoint .pt file written by aia-train")
     problem = checkpoint_damage(path)
     require(problem is None, key, str(path), f"an undamaged torch checkpoint written by aia-train, but {problem}: "
             f"use another checkpoint (the run's {PREVIOUS_CHECKPOINT_NAME} is the one before its last)")

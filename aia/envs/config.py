@@ -14,12 +14,16 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from hydra.core.config_store import ConfigStore
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from aia.config.checks import check_choice, check_number, require
-from aia.envs.belief_models import BELIEF_MODELS, CONTROLS
-from aia.envs.filters import FILTERS
-from aia.envs.maps import RANDOM_MAP, RANDOM_SHAPES, check_start_margin, load_map
-from aia.envs.targets import TARGET_MODELS
+from aia.config.composing import node_error
+from aia.config.schemas import SCHEMAS
+
+# The registries of target models, filters and maps live beside their torch code: the checks import them when they
+# run, so that the schema itself (what the apps' --help and their config composition read) loads without torch.
+RANDOM_MAP = "random_obstacles"  # env.map's name for a new random layout per world and episode (map_generator)
 
 
 @dataclass
@@ -206,19 +210,27 @@ class TrackingConfig:
         validate(self)
 
 
-_CHOICES = {
-    "target.model": TARGET_MODELS,
-    "target.collision_rule": ("reflect", "detour"),
-    "belief.filter": tuple(FILTERS),
-    "belief.control": CONTROLS,
-    "belief.init_anchor": ("target", "robot"),
-    "belief.init_offset_shape": ("disk", "box"),
-    "features.relative_velocity": ("exact", "2019"),
-    "features.local_map": tuple(LOCAL_MAP_CHANNELS),
-    "reward.target_aggregate": ("mean", "sum"),
-    "reward.obstacle_form": ("2019", "paper"),
-    "dtype": ("float32", "float64"),
-}
+def _choices() -> dict[str, tuple]:
+    """The allowed values of the env's fields that take a name, by dotted field."""
+    from aia.envs.belief_models import CONTROLS
+    from aia.envs.filters import FILTERS
+    from aia.envs.targets import TARGET_MODELS
+
+    return {
+        "target.model": TARGET_MODELS,
+        "target.collision_rule": ("reflect", "detour"),
+        "belief.filter": tuple(FILTERS),
+        "belief.control": CONTROLS,
+        "belief.init_anchor": ("target", "robot"),
+        "belief.init_offset_shape": ("disk", "box"),
+        "features.relative_velocity": ("exact", "2019"),
+        "features.local_map": tuple(LOCAL_MAP_CHANNELS),
+        "reward.target_aggregate": ("mean", "sum"),
+        "reward.obstacle_form": ("2019", "paper"),
+        "dtype": ("float32", "float64"),
+    }
+
+
 _POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "target.init_candidates",
                       "belief.particles", "features.im_size")
 _POSITIVE = ("dt", "sensor.range", "sensor.range_std", "sensor.bearing_std", "sensor.obstacle_ray_spacing",
@@ -249,9 +261,8 @@ def belief_model_name(cfg: TrackingConfig) -> str:
 
 def validate(cfg: TrackingConfig) -> None:
     """Raise :class:`~aia.config.errors.ConfigError` naming the first field (``env.<field>``) whose value is out of
-    its allowed set or range, or the map file and field that is wrong (the map is loaded and checked here)."""
-    for name, allowed in _CHOICES.items():
-        check_choice(f"env.{name}", _get(cfg, name), allowed)
+    its allowed set or range, or the map file and field that is wrong (the map is loaded and checked here). The
+    numbers first: the names' registries import torch."""
     for name in _POSITIVE_INTEGERS:
         check_number(f"env.{name}", _get(cfg, name), ge=1, integer=True)
     for name in _POSITIVE:
@@ -269,6 +280,11 @@ def validate(cfg: TrackingConfig) -> None:
         distance = list(_get(cfg, name))
         require(len(distance) == 2 and all(isinstance(d, (int, float)) for d in distance)
                 and 0 <= distance[0] <= distance[1], f"env.{name}", distance, "[min, max] with 0 <= min <= max")
+    from aia.envs.belief_models import BELIEF_MODELS
+    from aia.envs.maps import check_start_margin, load_map
+
+    for name, allowed in _choices().items():
+        check_choice(f"env.{name}", _get(cfg, name), allowed)
     check_choice("env.belief.model", cfg.belief.model, (None, *BELIEF_MODELS))
     require(cfg.belief.filter != "kf" or belief_model_name(cfg) == "double_integrator", "env.belief.filter",
             cfg.belief.filter, f"ukf or particle with belief.model={belief_model_name(cfg)} (kf takes the linear "
@@ -284,6 +300,8 @@ def validate(cfg: TrackingConfig) -> None:
 
 def validate_random_map(cfg: TrackingConfig) -> None:
     """The ``random_map`` fields, and what a generated map cannot do (ttenv v1's detour rule needs a fixed map)."""
+    from aia.envs.maps import RANDOM_SHAPES
+
     m = cfg.random_map
     size = list(m.size)
     require(len(size) == 2 and all(isinstance(v, (int, float)) and v > 0 for v in size), "env.random_map.size",
@@ -309,6 +327,18 @@ def validate_random_map(cfg: TrackingConfig) -> None:
     require(cfg.map != RANDOM_MAP or cfg.target.collision_rule != "detour", "env.target.collision_rule",
             cfg.target.collision_rule, f"reflect with map={RANDOM_MAP} (the detour rule's nearest-obstacle table "
             "is built per fixed map)")
+
+
+def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
+    """A validated :class:`TrackingConfig` from a composed ``env`` node (or the config itself); a
+    :class:`~aia.config.errors.ConfigError` names the first bad field."""
+    if isinstance(cfg, TrackingConfig):
+        return cfg
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(TrackingConfig), cfg)
+        return OmegaConf.to_object(merged)
+    except OmegaConfBaseException as err:
+        raise node_error(err, cfg, SCHEMAS["env_setting"], "env.") from None
 
 
 # A root config, not a member of the env group: `env=<name>` offers only the settings. Presets start with

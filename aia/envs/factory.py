@@ -8,16 +8,15 @@ from pathlib import Path
 
 import torch
 from hydra.errors import HydraException
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 from torchrl.envs import Compose
 
-import aia.envs.config  # noqa: F401  (registers the env schema with Hydra's ConfigStore)
 from aia.config.checks import check_choice
-from aia.config.composing import compose_config, composition_error, node_error
+from aia.config.composing import compose_config, composition_error
 from aia.config.errors import ConfigError, one_line
 from aia.config.schemas import SCHEMAS
-from aia.envs.config import TrackingConfig
+from aia.envs.config import TrackingConfig, to_tracking_config
 from aia.envs.sensing import Geometry
 from aia.envs.tracking import TargetTrackingEnv
 from aia.envs.transformed import TrackingTransformedEnv
@@ -42,18 +41,6 @@ def load_env_config(setting: str = "empty1", overrides: Sequence[str] = ()) -> T
         error = composition_error(err, SCHEMAS["env_setting"])
         raise error or ConfigError("overrides", list(overrides), f"overrides of env fields ({one_line(err)})") from None
     return to_tracking_config(cfg.env)
-
-
-def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
-    """A validated :class:`TrackingConfig` from a composed ``env`` node (or the config itself); a
-    :class:`~aia.config.errors.ConfigError` names the first bad field."""
-    if isinstance(cfg, TrackingConfig):
-        return cfg
-    try:
-        merged = OmegaConf.merge(OmegaConf.structured(TrackingConfig), cfg)
-        return OmegaConf.to_object(merged)
-    except OmegaConfBaseException as err:
-        raise node_error(err, cfg, SCHEMAS["env_setting"], "env.") from None
 
 
 def make_transforms(config: TrackingConfig, compile: bool = False, geometry: Geometry | None = None) -> Compose:

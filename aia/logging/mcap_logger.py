@@ -58,7 +58,7 @@ import torch
 import yaml
 from mcap.data_stream import RecordBuilder
 from mcap.records import Metadata
-from mcap.writer import CompressionType, Writer
+from mcap.writer import Writer
 from omegaconf import DictConfig, OmegaConf
 from PIL import Image
 from torch import Tensor
@@ -66,13 +66,11 @@ from torchrl.record.loggers import Logger
 
 from aia.config.errors import RunFailed, Stopped, WriteFailed, one_line, os_error_text
 from aia.logging import schemas
-from aia.logging.metadata import STATUS_METADATA, flatten
+from aia.logging.metadata import COMPRESSIONS, RUN_LOG, STATUS_METADATA, flatten
 from aia.runtime.timing import utc_now
 
-COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 LOG_TOPIC = "/log"
 _PACKAGES = ("aia", "torch", "torchrl", "tensordict", "hydra-core", "mcap", "numpy")
-RUN_LOG = "run.mcap"  # a run's log in its folder (MCAPLogger's file_name by default)
 
 
 class MCAPRun:

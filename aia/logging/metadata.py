@@ -1,5 +1,6 @@
 """Conventions of a run log's metadata that readers share with the writer, importable without torch (so that
-``aia-log`` starts in a fraction of a second): the early-end status record's name and the config's flattening."""
+``aia-log`` starts in a fraction of a second, and the apps' configs name the compressions): the early-end status
+record's name, the config's flattening, the log's file name and its chunks' compressions."""
 
 from __future__ import annotations
 
@@ -7,7 +8,10 @@ from collections.abc import Mapping
 from typing import Any
 
 import yaml
+from mcap.writer import CompressionType
 
+RUN_LOG = "run.mcap"  # a run's log in its folder (MCAPLogger's file_name by default)
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 STATUS_METADATA = "status"  # written only by a run that ended early: {"status": "failed" | "stopped", "reason"}
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+import aia.training
 from aia.apps import evaluate, rollout, train
 from aia.config.errors import ConfigError
 
@@ -102,7 +103,7 @@ def test_internal_errors_keep_their_traceback(tmp_path, monkeypatch):
     def broken(cfgs, out_dirs, stop=None, validated=False):
         raise RuntimeError("internal")
 
-    monkeypatch.setattr(train, "train_population", broken)
+    monkeypatch.setattr(aia.training, "train_population", broken)  # aia-train imports it once the config is valid
     monkeypatch.setattr(sys, "argv", ["app", f"hydra.run.dir={tmp_path}", *HYDRA_QUIET, "logger=none"])
     with pytest.raises(RuntimeError, match="internal"):
         train.main()
@@ -202,3 +203,15 @@ def test_help_into_a_closed_pipe_ends_without_a_traceback():
     process.stdout.close()  # the reader is gone before the app writes (aia-train --help | head -0)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 1 and err == b""
+
+
+@pytest.mark.parametrize("app, argv", [("train", ["--help"]), ("train", ["lr=-1"]), ("train", ["env.num_targets=0"]),
+                                       ("evaluate", ["--help"]), ("evaluate", ["checkpoint=none.pt"]),
+                                       ("rollout", ["num_worlds=0"])])
+def test_help_and_a_refusal_answer_without_loading_torch(tmp_path, app, argv):
+    # the training and evaluation stacks load only once a config is valid: --help and a refusal take about a second
+    code = (f"import sys; from aia.apps.{app} import main; sys.argv = ['app', *{argv!r}]\n"
+            "try:\n    main()\nexcept SystemExit as end:\n    print(end.code, 'torch' in sys.modules)")
+    result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert result.stdout.splitlines()[-1] == ("0 False" if argv == ["--help"] else "2 False"), result.stderr[-2000:]
+    assert argv == ["--help"] or result.stderr.count("\n") == 1, result.stderr
