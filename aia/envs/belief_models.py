@@ -24,10 +24,8 @@ import torch
 from torch import Tensor
 
 from aia.envs.belief import bmm
+from aia.envs.config import BELIEF_MODELS
 from aia.envs.dynamics import double_integrator, se2_step
-
-BELIEF_MODELS = ("double_integrator", "se2", "se2_velocity")
-CONTROLS = ("zero", "random")
 
 
 @dataclass(frozen=True)

@@ -21,9 +21,14 @@ from aia.config.checks import check_choice, check_number, require
 from aia.config.composing import node_error
 from aia.config.schemas import SCHEMAS
 
-# The registries of target models, filters and maps live beside their torch code: the checks import them when they
-# run, so that the schema itself (what the apps' --help and their config composition read) loads without torch.
+# The names the env's fields choose among, here and not beside their torch code (which imports them from here), so
+# that the schema and its checks load without torch: the apps' --help and refusals answer in about half a second.
+TARGET_MODELS = ("double_integrator", "evasive", "se2_sine", "se2_constant")  # aia.envs.targets
+BELIEF_MODELS = ("double_integrator", "se2", "se2_velocity")  # aia.envs.belief_models
+CONTROLS = ("zero", "random")  # the control an se2 belief model assumes (aia.envs.belief_models)
+FILTER_NAMES = ("kf", "ukf", "particle")  # aia.envs.filters.FILTERS, in this order
 RANDOM_MAP = "random_obstacles"  # env.map's name for a new random layout per world and episode (map_generator)
+RANDOM_SHAPES = ("box", "l", "t")  # the shapes of its obstacles
 
 
 @dataclass
@@ -210,26 +215,19 @@ class TrackingConfig:
         validate(self)
 
 
-def _choices() -> dict[str, tuple]:
-    """The allowed values of the env's fields that take a name, by dotted field."""
-    from aia.envs.belief_models import CONTROLS
-    from aia.envs.filters import FILTERS
-    from aia.envs.targets import TARGET_MODELS
-
-    return {
-        "target.model": TARGET_MODELS,
-        "target.collision_rule": ("reflect", "detour"),
-        "belief.filter": tuple(FILTERS),
-        "belief.control": CONTROLS,
-        "belief.init_anchor": ("target", "robot"),
-        "belief.init_offset_shape": ("disk", "box"),
-        "features.relative_velocity": ("exact", "2019"),
-        "features.local_map": tuple(LOCAL_MAP_CHANNELS),
-        "reward.target_aggregate": ("mean", "sum"),
-        "reward.obstacle_form": ("2019", "paper"),
-        "dtype": ("float32", "float64"),
-    }
-
+_CHOICES = {
+    "target.model": TARGET_MODELS,
+    "target.collision_rule": ("reflect", "detour"),
+    "belief.filter": FILTER_NAMES,
+    "belief.control": CONTROLS,
+    "belief.init_anchor": ("target", "robot"),
+    "belief.init_offset_shape": ("disk", "box"),
+    "features.relative_velocity": ("exact", "2019"),
+    "features.local_map": tuple(LOCAL_MAP_CHANNELS),
+    "reward.target_aggregate": ("mean", "sum"),
+    "reward.obstacle_form": ("2019", "paper"),
+    "dtype": ("float32", "float64"),
+}
 
 _POSITIVE_INTEGERS = ("num_targets", "max_steps", "collision_supersample", "target.init_candidates",
                       "belief.particles", "features.im_size")
@@ -261,8 +259,10 @@ def belief_model_name(cfg: TrackingConfig) -> str:
 
 def validate(cfg: TrackingConfig) -> None:
     """Raise :class:`~aia.config.errors.ConfigError` naming the first field (``env.<field>``) whose value is out of
-    its allowed set or range, or the map file and field that is wrong (the map is loaded and checked here). The
-    numbers first: the names' registries import torch."""
+    its allowed set or range, or the map file and field that is wrong (the map is loaded and checked here, last: a
+    map loads torch)."""
+    for name, allowed in _CHOICES.items():
+        check_choice(f"env.{name}", _get(cfg, name), allowed)
     for name in _POSITIVE_INTEGERS:
         check_number(f"env.{name}", _get(cfg, name), ge=1, integer=True)
     for name in _POSITIVE:
@@ -280,11 +280,6 @@ def validate(cfg: TrackingConfig) -> None:
         distance = list(_get(cfg, name))
         require(len(distance) == 2 and all(isinstance(d, (int, float)) for d in distance)
                 and 0 <= distance[0] <= distance[1], f"env.{name}", distance, "[min, max] with 0 <= min <= max")
-    from aia.envs.belief_models import BELIEF_MODELS
-    from aia.envs.maps import check_start_margin, load_map
-
-    for name, allowed in _choices().items():
-        check_choice(f"env.{name}", _get(cfg, name), allowed)
     check_choice("env.belief.model", cfg.belief.model, (None, *BELIEF_MODELS))
     require(cfg.belief.filter != "kf" or belief_model_name(cfg) == "double_integrator", "env.belief.filter",
             cfg.belief.filter, f"ukf or particle with belief.model={belief_model_name(cfg)} (kf takes the linear "
@@ -295,13 +290,13 @@ def validate(cfg: TrackingConfig) -> None:
                 "a non-empty list of numbers")
     validate_random_map(cfg)
     if cfg.map != RANDOM_MAP:
+        from aia.envs.maps import check_start_margin, load_map
+
         check_start_margin(load_map(cfg.map), cfg.margin)
 
 
 def validate_random_map(cfg: TrackingConfig) -> None:
     """The ``random_map`` fields, and what a generated map cannot do (ttenv v1's detour rule needs a fixed map)."""
-    from aia.envs.maps import RANDOM_SHAPES
-
     m = cfg.random_map
     size = list(m.size)
     require(len(size) == 2 and all(isinstance(v, (int, float)) and v > 0 for v in size), "env.random_map.size",

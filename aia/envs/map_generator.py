@@ -40,8 +40,8 @@ from torch import Tensor
 
 from aia import rng
 from aia.config.errors import ConfigError
+from aia.envs.config import RANDOM_SHAPES
 from aia.envs.cpu_map_queries import block_fields, block_scratch, grid_runs, runs_scratch
-from aia.envs.maps import RANDOM_SHAPES
 from aia.runtime.cpu_threads import (
     array1,
     array2,

@@ -24,8 +24,6 @@ from aia.config.checks import check_number, require
 from aia.config.errors import ConfigError
 from aia.envs.config import RANDOM_MAP
 
-# The shapes of a random layout (env.map=random_obstacles: aia.envs.map_generator).
-RANDOM_SHAPES = ("box", "l", "t")
 _MAP_KEYS = {"size", "resolution", "robot_start", "border_cells", "boxes", "rotated_boxes", "grid", "description"}
 
 

@@ -39,8 +39,6 @@ from aia.envs import belief
 from aia.envs.dynamics import double_integrator, se2_step, wrap_angle
 from aia.envs.sensing import Geometry
 
-TARGET_MODELS = ("double_integrator", "evasive", "se2_sine", "se2_constant")
-
 
 class TargetModel(ABC):
     """The true targets' motion: ``dim`` state entries, ``normals`` draws per target and step, and which

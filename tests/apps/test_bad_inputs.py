@@ -206,6 +206,7 @@ def test_help_into_a_closed_pipe_ends_without_a_traceback():
 
 
 @pytest.mark.parametrize("app, argv", [("train", ["--help"]), ("train", ["lr=-1"]), ("train", ["env.num_targets=0"]),
+                                       ("train", ["env.belief.filter=nope"]),
                                        ("evaluate", ["--help"]), ("evaluate", ["checkpoint=none.pt"]),
                                        ("rollout", ["num_worlds=0"])])
 def test_help_and_a_refusal_answer_without_loading_torch(tmp_path, app, argv):
