@@ -102,7 +102,13 @@ phase() {
 # that a terminal's Ctrl-C reaches a sweep from the script only: one that reached it directly as well would be a
 # second Ctrl-C to the launcher. The script waits for its jobs to end, then exits with 128 + signal and one line
 # saying how to continue (stopped). A sweep that a signal sent to it alone stopped (SIGTERM or SIGUSR1 to the
-# launcher) ends the script the same way.
+# launcher) ends the script the same way. What runs on a stop forks nothing (no command substitution): timeout
+# signals the script and then its whole process group, which ends a subshell forked in between at once; a
+# `$(jobs -pr)` so ended read as no job, and the script hung, the sweep never told, or left it running (4 of 40
+# timeouts of the test on a loaded machine).
+job_pids=()  # the jobs not yet waited for (each its process group's leader), which a stop signal goes on to
+declare -A signal_number=()
+for signal in INT TERM USR1 HUP; do signal_number[$signal]=$(kill -l "$signal"); done
 stop_signal=""
 stop_note=""  # a script's addition to the line on a stop
 # on_stop SIGNAL: the trap of the stop signals; a further Ctrl-C while it waits is forwarded in turn (it kills the
@@ -112,9 +118,21 @@ on_stop() {
   local pid forward=$1
   if [[ "$1" == HUP ]]; then forward=TERM; fi
   stop_signal=${stop_signal:-$1}
-  for pid in $(jobs -pr); do kill -s "$forward" -- "-$pid" 2>/dev/null || true; done
-  while [[ -n "$(jobs -pr)" ]]; do wait || true; done
+  for pid in "${job_pids[@]}"; do kill -s "$forward" -- "-$pid" 2>/dev/null || true; done
+  while job_running; do wait || true; done
   stopped "$stop_signal"
+}
+# job_running: whether a job not yet waited for still runs (bash reaps an ended job at once)
+job_running() {
+  local pid
+  for pid in "${job_pids[@]}"; do if kill -0 "$pid" 2>/dev/null; then return 0; fi; done
+  return 1
+}
+# waited PID: job PID was waited for (its process id may now be another process's)
+waited() {
+  local pid kept=()
+  for pid in "${job_pids[@]}"; do if [[ "$pid" != "$1" ]]; then kept+=("$pid"); fi; done
+  job_pids=("${kept[@]}")
 }
 for signal in INT TERM USR1 HUP; do
   # the repeat's test in the trap itself: bash 5.2 cannot return from a function called by a trap that interrupted
@@ -138,9 +156,9 @@ stopped() {
   local resume="${TRAIN_OVERRIDES:+$TRAIN_OVERRIDES }resume=auto" where=""
   if resuming; then resume=$TRAIN_OVERRIDES; fi
   if [[ -n "$phase_name" ]]; then where=" in phase '${phase_name%%:*}'"; fi
-  echo "$(basename "$0"): stopped by SIG$1$where, its running jobs ended: continue it with" \
+  echo "${0##*/}: stopped by SIG$1$where, its running jobs ended: continue it with" \
     "TRAIN_OVERRIDES=\"$resume\" and the other variables as they were$stop_note" >&2
-  exit $(( 128 + $(kill -l "$1") ))
+  exit $(( 128 + signal_number[$1] ))
 }
 
 # job CMD...: start CMD in the background as a process group of its own (job control on for this one fork), stdin
@@ -148,21 +166,24 @@ stopped() {
 # command it is running has ended (the signal reached that command too), so that it starts none after.
 job() {
   set -m
-  if [[ "$(type -t "$1")" == function ]]; then
+  if declare -F "$1" > /dev/null; then
     (trap 'exit 130' INT; trap 'exit 143' TERM; trap 'exit 138' USR1; "$@") < /dev/null &
   else
     "$@" < /dev/null &
   fi
   set +m
+  job_pids+=("$!")
 }
 
 # run CMD...: CMD as a job, waited for; its exit status. A sweep ended by a stop signal sent to it alone (status
 # 128 + SIGINT, SIGTERM or SIGUSR1) ends the protocol as one sent to the script does.
 run() {
-  local status=0
+  local status=0 pid name
   job "$@"
-  wait "$!" || status=$?
-  case "$status" in 130|138|143) stopped "$(kill -l "$status")" ;; esac
+  pid=$!
+  wait "$pid" || status=$?
+  waited "$pid"
+  for name in INT TERM USR1; do if (( status == 128 + signal_number[$name] )); then stopped "$name"; fi; done
   return "$status"
 }
 
@@ -171,10 +192,12 @@ run() {
 # shellcheck disable=SC2034  # failed: read by the scripts
 running=0 failed=0
 throttle() {
+  local pid
   running=$(( running + 1 ))
-  if (( running >= JOBS )); then wait -n || failed=1; running=$(( running - 1 )); fi
+  if (( running >= JOBS )); then wait -n -p pid || failed=1; waited "$pid"; running=$(( running - 1 )); fi
 }
 # shellcheck disable=SC2034  # failed: read by the scripts
 drain() {
-  while (( running > 0 )); do wait -n || failed=1; running=$(( running - 1 )); done
+  local pid
+  while (( running > 0 )); do wait -n -p pid || failed=1; waited "$pid"; running=$(( running - 1 )); done
 }

@@ -3,6 +3,7 @@ refusals of bad or empty input, and its stop on a signal (with a stand-in sweep;
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -188,12 +189,15 @@ def _default_sigint() -> None:
 
 @pytest.mark.parametrize("script, how", [
     (SCRIPT, "SIGTERM"), (SCRIPT, "SIGINT"), (SCRIPT, "timeout"), (SCRIPT, "SIGUSR1 to the sweep"),
-    (SCRIPT, "SIGTERM twice"), (SCRIPT.parent / "generalisation.sh", "SIGTERM")])
+    (SCRIPT, "SIGTERM twice"), (SCRIPT, "SIGTERM then to its group"),
+    (SCRIPT.parent / "generalisation.sh", "SIGTERM")])
 def test_a_stop_signal_stops_the_running_sweep_and_says_how_to_continue(tmp_path, script, how):
     """SIGTERM or SIGINT (Ctrl-C) to the script, or a timeout, reaches the running sweep's every process once; the
     script waits for the sweep to end and exits with 128 + signal and one line on how to continue. A sweep stopped
     by a signal of its own ends the script the same way. A second SIGTERM adds nothing (timeout sends its signal to
-    the script and then to its process group: on a busy machine the script's trap ran for each)."""
+    the script and then to its process group: on a busy machine the script's trap ran for each), nor does a flood of
+    SIGTERM to the script's process group, which ends any subshell the script forks meanwhile (a `$(jobs -pr)` in
+    its trap so ended read as no job: the script hung or left the sweep running)."""
     fakes = tmp_path / "bin"
     fakes.mkdir()
     (fakes / "aia-train").write_text(FAKE_SWEEP.format(python=sys.executable).replace(
@@ -210,7 +214,7 @@ def test_a_stop_signal_stops_the_running_sweep_and_says_how_to_continue(tmp_path
         # with SIGINT as a terminal leaves it: a shell started with SIGINT ignored (a CI job run in the background)
         # cannot trap it, and passes that on to this script
         script_run = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr,
-                                      preexec_fn=_default_sigint)
+                                      preexec_fn=_default_sigint, start_new_session=how.endswith("group"))
     try:
         deadline = time.monotonic() + 20
         while not (log.exists() and "started" in log.read_text()):
@@ -223,6 +227,11 @@ def test_a_stop_signal_stops_the_running_sweep_and_says_how_to_continue(tmp_path
             if how.endswith("twice"):
                 time.sleep(0.2)  # while the script waits for the sweep
                 os.kill(script_run.pid, signum)
+            if how.endswith("group"):  # timeout's second signal, over and over while the script stops the sweep
+                with contextlib.suppress(ProcessLookupError):  # the script's group is gone: it has ended
+                    while script_run.poll() is None:
+                        os.killpg(script_run.pid, signum)
+                        time.sleep(0.001)
         else:
             signum = signal.SIGTERM  # what timeout sends
         script_run.wait(timeout=20)
