@@ -114,4 +114,4 @@ if step envs; then
   echo "exit $?" >> "$OUT/envs.log"
   quiet < "$OUT/envs.log" | grep -E "^\||exit" | tail -20
 fi
-stamp done
+stamp "done"
