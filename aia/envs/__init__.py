@@ -6,8 +6,9 @@ names, ``make_env`` and the rest of :mod:`aia.envs.factory`, here would make ``i
 loading torch, so that their ``--help`` and their refusals answer in about a second.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from aia.runtime.lazy import lazy_names
 
 if TYPE_CHECKING:
     from aia.envs.config import TrackingConfig
@@ -16,19 +17,11 @@ if TYPE_CHECKING:
     from aia.envs.tracking import TargetTrackingEnv
     from aia.envs.transformed import TrackingTransformedEnv
 
-_MODULES = {"TrackingConfig": "aia.envs.config", "GridMap": "aia.envs.maps", "available_maps": "aia.envs.maps",
-            "load_map": "aia.envs.maps", "TargetTrackingEnv": "aia.envs.tracking",
-            "available_settings": "aia.envs.factory", "load_env_config": "aia.envs.factory",
-            "make_env": "aia.envs.factory", "make_transforms": "aia.envs.factory",
-            "TrackingTransformedEnv": "aia.envs.transformed"}
-
-
-def __getattr__(name: str):
-    """The names of ``__all__``, imported when first asked for."""
-    if name in _MODULES:
-        return getattr(import_module(_MODULES[name]), name)
-    raise AttributeError(f"module 'aia.envs' has no attribute {name!r}")
-
+__getattr__ = lazy_names(__name__, {
+    "TrackingConfig": "aia.envs.config", "GridMap": "aia.envs.maps", "available_maps": "aia.envs.maps",
+    "load_map": "aia.envs.maps", "TargetTrackingEnv": "aia.envs.tracking", "available_settings": "aia.envs.factory",
+    "load_env_config": "aia.envs.factory", "make_env": "aia.envs.factory", "make_transforms": "aia.envs.factory",
+    "TrackingTransformedEnv": "aia.envs.transformed"})
 
 __all__ = [
     "GridMap",

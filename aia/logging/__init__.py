@@ -7,22 +7,16 @@ reader of logs (``aia-log``) starts without loading torch and TorchRL: ``aia-log
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
 
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
+from aia.runtime.lazy import lazy_names
 
 if TYPE_CHECKING:
     from aia.logging.mcap_logger import MCAPLogger
     from aia.logging.recorder import SceneRecorder
 
-_WRITERS = {"MCAPLogger": "aia.logging.mcap_logger", "SceneRecorder": "aia.logging.recorder"}
+# the writers import torch
+__getattr__ = lazy_names(__name__, {"MCAPLogger": "aia.logging.mcap_logger", "SceneRecorder": "aia.logging.recorder"})
 
 __all__ = ["MCAPLogger", "RunLog", "RunLogError", "SceneRecorder", "find_runs", "read_run"]
-
-
-def __getattr__(name: str) -> object:
-    """The writers, imported when first asked for (they import torch)."""
-    if name in _WRITERS:
-        return getattr(importlib.import_module(_WRITERS[name]), name)
-    raise AttributeError(f"module 'aia.logging' has no attribute {name!r}")

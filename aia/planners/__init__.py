@@ -6,24 +6,17 @@ close pairs), ``search`` (the anytime schedule, :class:`ARVIPlanner`), ``policy`
 The planner's names load on first use: the apps validate its config (:mod:`aia.planners.config`) without torch.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
 
 from aia.planners.config import ARVIConfig, to_arvi_config
+from aia.runtime.lazy import lazy_names
 
 if TYPE_CHECKING:
     from aia.planners.policy import ARVIPolicy
     from aia.planners.search import ARVIPlanner, PlanResult
 
-_MODULES = {"ARVIPolicy": "aia.planners.policy", "ARVIPlanner": "aia.planners.search",
-            "PlanResult": "aia.planners.search"}
-
-
-def __getattr__(name: str):
-    """The planner and its policy, imported when first asked for (they import torch)."""
-    if name in _MODULES:
-        return getattr(import_module(_MODULES[name]), name)
-    raise AttributeError(f"module 'aia.planners' has no attribute {name!r}")
-
+# the planner and its policy import torch
+__getattr__ = lazy_names(__name__, {"ARVIPolicy": "aia.planners.policy", "ARVIPlanner": "aia.planners.search",
+                                    "PlanResult": "aia.planners.search"})
 
 __all__ = ["ARVIConfig", "ARVIPlanner", "ARVIPolicy", "PlanResult", "to_arvi_config"]
