@@ -25,6 +25,7 @@ from aia.config.validation import validate_train_config
 from aia.logging.segments import last_segment
 from aia.runtime.stopping import StopOnSignals
 from aia.runtime.timing import PhaseTimer
+from aia.training.checkpoint_names import CHECKPOINT_NAME
 
 if TYPE_CHECKING:
     from aia.training import TrainingState
@@ -96,8 +97,6 @@ def exit_if_stopped(stop: StopOnSignals, out_dirs: Sequence[Path], state: Traini
     """After a signal: one line saying where the checkpoints are, then exit with status 128 + signal."""
     if not stop.signal:
         return
-    from aia.training.checkpoint import CHECKPOINT_NAME
-
     where = ", ".join(str(Path(d) / CHECKPOINT_NAME) for d in out_dirs)
     print(f"stopped by {signal.Signals(stop.signal).name} at frame {state.frames}: checkpoint {where} "
           "(continue: the same command with resume=auto)", file=sys.stderr)
@@ -106,8 +105,6 @@ def exit_if_stopped(stop: StopOnSignals, out_dirs: Sequence[Path], state: Traini
 
 def report(cfg: DictConfig, out_dir: Path, state: TrainingState) -> None:
     """What a finished run prints: its counters, last score, time split, log and checkpoint."""
-    from aia.training.checkpoint import CHECKPOINT_NAME
-
     print(f"{state.frames} frames, {state.episodes} episodes, {state.updates} updates; "
           f"last eval score {_last_score(state)}")
     print(f"time: {PhaseTimer(state.seconds).summary()}")
@@ -126,8 +123,6 @@ def report_population(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path], stat
     """What a finished (or ``stopped``) population prints: the counters and time split its members share, once,
     then a line per member (its learner, seed, learning rate, last score and log); checkpoints lie in each job
     folder."""
-    from aia.training.checkpoint import CHECKPOINT_NAME
-
     shared = states[0]
     ended = "stopped at" if stopped else "trained:"
     print(f"population of {len(states)} {ended} {shared.frames} frames, {shared.episodes} episodes, "

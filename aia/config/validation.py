@@ -25,6 +25,7 @@ from aia.config.errors import ConfigError
 from aia.config.schemas import EvalConfig, RolloutConfig, TrainConfig
 from aia.envs.config import TrackingConfig, to_tracking_config
 from aia.planners.config import ARVIConfig, to_arvi_config
+from aia.training.checkpoint_names import PREVIOUS_CHECKPOINT_NAME
 
 # The apps' fields typed Any that hold a sub-config with a schema of its own.
 SUB_SCHEMAS: dict[str, type] = {"env": TrackingConfig, "planner": ARVIConfig}
@@ -180,8 +181,7 @@ def overrides_group(overrides: Sequence[str], group: str) -> list[str]:
 def check_checkpoint_file(key: str, path: Path) -> None:
     """``path`` is an existing, undamaged checkpoint file (every record's CRC-32 checked)."""
     require(path.is_file(), key, str(path), "an existing checkpoint .pt file written by aia-train")
-    from aia.training.checkpoint import PREVIOUS_CHECKPOINT_NAME  # imported here: aia.training imports this module
-    from aia.training.checkpoint_files import checkpoint_damage
+    from aia.training.checkpoint_files import checkpoint_damage  # a valid path only: it loads torch
 
     problem = checkpoint_damage(path)
     require(problem is None, key, str(path), f"an undamaged torch checkpoint written by aia-train, but {problem}: "

@@ -22,9 +22,6 @@ from torch import Tensor
 if TYPE_CHECKING:  # the population module builds on this one
     from aia.training.population import Population
 
-CHECKPOINT_NAME = "checkpoints/last.pt"
-PREVIOUS_CHECKPOINT_NAME = "checkpoints/previous.pt"  # the one before: what resume=auto falls back to
-
 
 @dataclass
 class TrainingState:

@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from aia.config.errors import WriteFailed, os_error_text
-from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
+from aia.training.checkpoint_names import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 
 _MSDOS_FOLDER = 0x10  # the folder bit of a zip record's external attributes: torch's reader skips such a record
 

@@ -24,8 +24,8 @@ from omegaconf import DictConfig, OmegaConf
 from aia.config.composing import compose_config
 from aia.config.errors import ConfigError
 from aia.config.schemas import TrainConfig, keys_where
-from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 from aia.training.checkpoint_files import checkpoint_damage
+from aia.training.checkpoint_names import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 from aia.training.members import flat_settings
 
 RESUME_KEYS = keys_where(TrainConfig, "resume")

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from aia.runtime.stopping import StopOnSignals, interrupting
-from aia.training.checkpoint import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
+from aia.training.checkpoint_names import CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME
 from aia.training.members import first_difference, population_signature, population_work
 from aia.training.progress import forwarding
 from aia.training.resuming import resume_point

@@ -23,7 +23,7 @@ from hydra.core.utils import JobStatus
 
 import aia.apps.train as train_app
 from aia.config.errors import JobFailed
-from aia.training.checkpoint import CHECKPOINT_NAME
+from aia.training.checkpoint_names import CHECKPOINT_NAME
 from hydra_plugins.aia_population_launcher import slurm
 
 
