@@ -398,6 +398,42 @@ def add_stats_options(cmd: argparse.ArgumentParser, verdicts: bool) -> None:
                               f"difference (default: {DEFAULTS.difference_threshold})")
 
 
+def add_comparison_options(cmd: argparse.ArgumentParser, runs_help: str, baseline_use: str) -> None:
+    """The runs, groups and baselines that ``plot`` and ``stats`` compare, and how a run's curve is read (its
+    smoothing, its x unit and which way is better: the curves' axis and the first x at which a group reaches a
+    baseline)."""
+    cmd.add_argument("runs", nargs="+", help=runs_help)
+    cmd.add_argument("--metric", default="eval/score", help="scalar topic (default: eval/score)")
+    cmd.add_argument("--group-by", action="append", default=[], metavar="KEY",
+                     help="config key to group runs by, e.g. method, algo or env.num_targets (repeatable)")
+    cmd.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
+                     help="keep only runs (and baseline runs) whose config has this value, e.g. env.num_targets=2 "
+                          "(repeatable)")
+    cmd.add_argument("--baseline", action="append", default=[], metavar="RUNS",
+                     help=f"runs whose metric values make a baseline, {baseline_use}, e.g. aia-eval policy=arvi logs")
+    cmd.add_argument("--baseline-label", action="append", default=[], metavar="LABEL",
+                     help="the baseline's name (e.g. ARVI); one per --baseline makes several baselines")
+    cmd.add_argument("--window", type=int, default=1,
+                     help="moving-average window of each run's curve (default: 1; the paper's: 4)")
+    cmd.add_argument("--x", dest="x_axis", choices=X_AXES, default="frame",
+                     help="x unit: training frames (default), training episodes (the paper's) or evaluation index")
+    cmd.add_argument("--better", choices=("higher", "lower"),
+                     help="which way the metric improves, for the first x reaching a baseline (default: lower for "
+                          "a metric named *error* or *loss*, such as eval/belief_error, higher otherwise)")
+
+
+def compared_runs(args: argparse.Namespace) -> tuple[list[RunLog], list[tuple[str, list[RunLog]]], bool]:
+    """What :func:`add_comparison_options` selected: the runs, the baselines as (label, runs), and whether lower
+    is better (ValueError naming a bad option)."""
+    if args.window < 1:
+        raise ValueError(f"--window={args.window} must be >= 1")
+    runs = runs_with_metric(args.runs, args.where, args.metric)
+    check_group_keys(runs, args.group_by)
+    baselines = baseline_runs(args.baseline, args.baseline_label, args.where, args.metric)
+    lower_better = lower_is_better(args.metric) if args.better is None else args.better == "lower"
+    return runs, baselines, lower_better
+
+
 def stats_config(args: argparse.Namespace) -> StatsConfig:
     """The :class:`StatsConfig` of the parsed options (ValueError naming a bad value)."""
     names = ("statistic", "reps", "ci_level", "seed", "verdict_by", "poi_threshold", "difference_threshold")
@@ -421,23 +457,7 @@ def make_parser() -> argparse.ArgumentParser:
     cmd.add_argument("--csv", type=Path, help="write the rows to this CSV file instead of printing them")
 
     cmd = commands.add_parser("plot", help="learning curves across runs: mean and std band per group")
-    cmd.add_argument("runs", nargs="+", help=runs_help)
-    cmd.add_argument("--metric", default="eval/score", help="scalar topic to plot (default: eval/score)")
-    cmd.add_argument("--group-by", action="append", default=[], metavar="KEY",
-                     help="config key to group runs by, e.g. algo or env.num_targets (repeatable)")
-    cmd.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
-                     help="keep only runs whose config has this value, e.g. env.num_targets=2 (repeatable)")
-    cmd.add_argument("--window", type=int, default=1, help="moving-average window per run (default 1; paper: 4)")
-    cmd.add_argument("--x", dest="x_axis", choices=X_AXES, default="frame",
-                     help="x axis: training frames (default), training episodes (the paper's) or evaluation index")
-    cmd.add_argument("--baseline", action="append", default=[], metavar="RUNS",
-                     help="runs whose metric values make a horizontal baseline band, e.g. aia-eval policy=arvi logs")
-    cmd.add_argument("--baseline-label", action="append", default=[], metavar="LABEL",
-                     help="legend label of the baseline (e.g. ARVI); one per --baseline draws several baselines")
-    cmd.add_argument("--better", choices=("higher", "lower"),
-                     help="which way the metric improves, for the table's episodes-to-reach-a-baseline columns "
-                          "(default: lower for a metric named *error* or *loss*, such as eval/belief_error, "
-                          "higher otherwise)")
+    add_comparison_options(cmd, runs_help, "a horizontal band drawn behind the curves")
     cmd.add_argument("--title", help="figure title (default: the metric)")
     cmd.add_argument("--out", type=Path, default=Path("curves.png"), help="PNG to write (default: curves.png)")
     cmd.add_argument("--ci", choices=("std", "bootstrap"), default="std",
@@ -447,22 +467,7 @@ def make_parser() -> argparse.ArgumentParser:
 
     cmd = commands.add_parser("stats", help="per group: IQM and mean of the runs' final levels with bootstrap CIs; "
                                             "against --baseline: P(improvement), difference, verdict (rliable)")
-    cmd.add_argument("runs", nargs="+", help=runs_help)
-    cmd.add_argument("--metric", default="eval/score", help="scalar topic (default: eval/score)")
-    cmd.add_argument("--group-by", action="append", default=[], metavar="KEY",
-                     help="config key to group runs by, e.g. method or algo (repeatable)")
-    cmd.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
-                     help="keep only runs (and baseline runs) whose config has this value (repeatable)")
-    cmd.add_argument("--baseline", action="append", default=[], metavar="RUNS",
-                     help="runs to compare every group with, e.g. aia-eval policy=arvi logs")
-    cmd.add_argument("--baseline-label", action="append", default=[], metavar="LABEL",
-                     help="the baseline's name; one per --baseline compares with several baselines")
-    cmd.add_argument("--window", type=int, default=1,
-                     help="moving-average window of the curves that first-reaching reads (default: 1; paper: 4)")
-    cmd.add_argument("--x", dest="x_axis", choices=X_AXES, default="frame",
-                     help="unit of first-reaching: training frames (default), training episodes or evaluation index")
-    cmd.add_argument("--better", choices=("higher", "lower"),
-                     help="which way the metric improves, for first-reaching (default: lower for *error* or *loss*)")
+    add_comparison_options(cmd, runs_help, "every group is compared with")
     add_stats_options(cmd, verdicts=True)
     cmd.add_argument("--json", action="store_true", help="print the statistics as JSON instead of a table")
 
@@ -498,31 +503,21 @@ def run_command(args: argparse.Namespace) -> None:
                 frame = "" if row["frame"] is None else row["frame"]
                 print(f"{row['topic']:<20} {frame:>10} {row['seconds']:>10.3f} {row['value']:>14.6g}  {row['run']}")
     elif args.command == "plot":
-        if args.window < 1:
-            raise ValueError(f"--window={args.window} must be >= 1")
         if args.out.suffix.lower() != ".png":
             raise ValueError(f"--out {args.out}: plot writes a .png file")
         bootstrap = stats_config(args) if args.ci == "bootstrap" else None
-        runs = runs_with_metric(args.runs, args.where, args.metric)
-        check_group_keys(runs, args.group_by)
-        baseline_groups = baseline_runs(args.baseline, args.baseline_label, args.where, args.metric)
+        runs, baseline_groups, lower_better = compared_runs(args)
         curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title,
                       baseline_groups, bootstrap)
         baselines = [(label, *baseline_level(members, args.metric)) for label, members in baseline_groups]
         for curve in curves:
             print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "
                   f"+- {curve.std[-1]:.1f}")
-        lower_better = lower_is_better(args.metric) if args.better is None else args.better == "lower"
         print(results_table(curves, args.metric, args.x_axis, baselines, lower_better))
         print(f"plot written to {args.out}")
     elif args.command == "stats":
         config = stats_config(args)
-        if args.window < 1:
-            raise ValueError(f"--window={args.window} must be >= 1")
-        runs = runs_with_metric(args.runs, args.where, args.metric)
-        check_group_keys(runs, args.group_by)
-        baselines = baseline_runs(args.baseline, args.baseline_label, args.where, args.metric)
-        lower_better = lower_is_better(args.metric) if args.better is None else args.better == "lower"
+        runs, baselines, lower_better = compared_runs(args)
         groups, bases = group_stats(runs, args.metric, args.group_by, baselines, config, args.window, args.x_axis,
                                     lower_better)
         if args.json:
