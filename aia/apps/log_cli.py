@@ -30,27 +30,17 @@ import numpy as np
 
 from aia.apps.summary import written_whole
 from aia.config.errors import Stopped
-from aia.logging.curves import (
-    TAIL_FRACTION,
-    X_AXES,
-    baseline_level,
-    first_reaching,
-    learning_curves,
-    lower_is_better,
-    select_runs,
-)
+from aia.logging.curves import X_AXES, baseline_level, lower_is_better, select_runs
+from aia.logging.episode_images import episode_images, image_strip
+from aia.logging.figures import X_LABELS, curves_figure, results_table
 from aia.logging.metadata import flatten
 from aia.logging.reader import RunLog, RunLogError, find_runs, read_run
 from aia.logging.stats import (
     STATISTICS,
     VERDICT_BY,
     StatsConfig,
-    check_runs,
-    curve_bands,
     describe,
     group_stats,
-    level_estimates,
-    levels_of,
     stats_json,
     stats_table,
 )
@@ -129,83 +119,6 @@ def scalar_rows(runs: Sequence[RunLog], topics: Sequence[str]) -> list[dict[str,
     return rows
 
 
-X_LABELS = {"frame": "training frames", "episode": "training episodes", "evaluation": "evaluation"}
-
-
-Baseline = tuple[str, float, float, int]  # label, mean, std, number of values
-BASELINE_STYLES = ("--", ":", "-.")
-
-
-def plot(runs: Sequence[RunLog], metric: str, group_by: Sequence[str], window: int, x_axis: str, out: Path,
-         title: str | None = None, baselines: Sequence[tuple[str, Sequence[RunLog]]] = (),
-         bootstrap: StatsConfig | None = None) -> list:
-    """Draw the learning curves (mean line, +-1 std band; with ``bootstrap``, the config's statistic and its
-    stratified-bootstrap CI band) of ``runs`` grouped by ``group_by`` into ``out``, with each of ``baselines``
-    (label, runs) as a horizontal line and band: the mean and +-1 std of all its values, or with ``bootstrap``
-    the statistic of its runs' levels and its CI (as ``aia-log stats`` gives them)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    curves = learning_curves(runs, metric, group_by, window, x_axis)
-    bands = curve_bands(runs, metric, group_by, window, x_axis, bootstrap) if bootstrap else []
-    figure, axes = plt.subplots(figsize=(7, 4.5), dpi=120)
-    for band in bands:
-        line, = axes.plot(band.x, band.centre, label=f"{band.label} ({band.runs} runs, {bootstrap.statistic_name} "
-                                                     f"and {bootstrap.ci_level:.0%} CI)")
-        axes.fill_between(band.x, band.low, band.high, color=line.get_color(), alpha=0.2)
-    for curve in curves if not bands else ():
-        line, = axes.plot(curve.x, curve.mean, label=f"{curve.label} ({int(curve.runs.max())} runs)")
-        axes.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, color=line.get_color(), alpha=0.2)
-    for k, (label, members) in enumerate(baselines):
-        style = BASELINE_STYLES[k % len(BASELINE_STYLES)]
-        if bootstrap:
-            check_runs(label, len(members), bootstrap)
-            estimate = level_estimates(levels_of(members, metric), bootstrap)[STATISTICS.index(bootstrap.statistic)]
-            centre, low, high = estimate.value, estimate.low, estimate.high
-            label = f"{label} ({len(members)} runs, {bootstrap.statistic_name} and {bootstrap.ci_level:.0%} CI)"
-        else:
-            mean, std, count = baseline_level(members, metric)
-            centre, low, high, label = mean, mean - std, mean + std, f"{label} ({count} values)"
-        axes.axhline(centre, color="black", linestyle=style, label=label)
-        axes.axhspan(low, high, color="black", alpha=0.08)
-    axes.set_xlabel(X_LABELS[x_axis])
-    axes.set_ylabel(metric + (f" (moving average of {window})" if window > 1 else ""))
-    axes.set_title(title or metric)
-    axes.grid(alpha=0.3)
-    axes.legend(fontsize="small")
-    figure.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with written_whole(out) as temporary:
-        figure.savefig(temporary)
-    plt.close(figure)
-    return curves
-
-
-def results_table(curves: Sequence, metric: str, x_axis: str, baselines: Sequence[Baseline] = (),
-                  lower_better: bool = False) -> str:
-    """A markdown table: per group, its runs, the final mean and std of the (smoothed) ``metric``, the mean
-    and std over runs of each run's last 10 % of values and, per baseline, where the mean first reaches the
-    baseline's mean (rises to it, or falls to it when ``lower_better``)."""
-    header = (f"| group | runs | final {metric} (mean +- std over runs) "
-              f"| last {TAIL_FRACTION:.0%} of evaluations (mean +- std over runs) |")
-    rule = "|---|---:|---:|---:|"
-    verb = "fall to" if lower_better else "reach"
-    for label, mean, std, _ in baselines:
-        header += f" {X_LABELS[x_axis]} to {verb} {label} ({mean:.1f} +- {std:.1f}) |"
-        rule += "---:|"
-    rows = [header, rule]
-    for curve in curves:
-        row = (f"| {curve.label} | {int(curve.runs.max())} | {curve.mean[-1]:.1f} +- {curve.std[-1]:.1f} "
-               f"| {curve.tails.mean():.1f} +- {curve.tails.std():.1f} |")
-        for _, mean, _, _ in baselines:
-            reached = first_reaching(curve, mean, lower_better)
-            row += f" {'never' if reached is None else f'{reached:.0f}'} |"
-        rows.append(row)
-    return "\n".join(rows)
-
-
 def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[str], metric: str
                   ) -> list[tuple[str, list[RunLog]]]:
     """The baselines of ``--baseline`` / ``--baseline-label`` as (label, runs): with one label or none, all
@@ -237,70 +150,25 @@ def baseline_runs(paths: Sequence[str], labels: Sequence[str], where: Sequence[s
     return baselines
 
 
-def action_view(points: np.ndarray, margin: float, limit: tuple[float, float]
-                ) -> tuple[float, float, float, float] | None:
-    """The square around ``points [K, 2]`` padded by ``margin`` metres, or None when it would not be smaller
-    than the map (``limit``: its width and height)."""
-    points = points[np.isfinite(points).all(-1)]
-    if points.size == 0:
-        return None
-    low, high = points.min(0) - margin, points.max(0) + margin
-    side = float((high - low).max())
-    if side >= max(limit):
-        return None
-    centre = (low + high) / 2
-    return (centre[0] - side / 2, centre[1] - side / 2, centre[0] + side / 2, centre[1] + side / 2)
-
-
 def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: float, zoom: bool = True
            ) -> tuple[int, int]:
-    """Write a recorded episode as a GIF (every step) or a PNG strip of ``frames`` evenly spaced steps (the
-    paper's Fig. 3: earlier robot and target positions as trails), zoomed on the episode's action (the square
-    around every robot, target and belief position, padded by the sensor range) when ``zoom`` and that square
-    is smaller than the map; returns the image's (width, height)."""
-    from PIL import Image, ImageDraw
-
-    from aia.envs.render import BORDER_COLOUR, render_frame
-
+    """Write a recorded episode (:func:`~aia.logging.episode_images.episode_images`) as a GIF of every step or a
+    PNG strip of ``frames`` evenly spaced steps; returns the image's (width, height)."""
     if out.suffix.lower() not in RENDER_FORMATS:
         raise ValueError(f"--out {out}: the format must be one of {list(RENDER_FORMATS)}")
     if frames < 1:
         raise ValueError(f"--frames={frames} must be >= 1")
     if fps <= 0:
         raise ValueError(f"--fps={fps} must be > 0")
-    info, steps = run.episode(episode if episode in ("first", "last") else _episode_index(episode))
-    if not steps:
-        raise ValueError(f"{run.path}: recorded episode {info.episode} has no frames")
-    shown = range(len(steps))
-    if out.suffix.lower() == ".png":
-        shown = np.unique(np.linspace(0, len(steps) - 1, frames).round().astype(int)).tolist()
-    robot_path = np.stack([step.robot_pose[:2] for step in steps])
-    target_paths = np.stack([step.targets for step in steps])
-    view = None
-    if zoom:
-        view = action_view(np.concatenate([robot_path, target_paths.reshape(-1, 2),
-                                           np.concatenate([step.belief_mean for step in steps])]),
-                           margin=info.sensor_range, limit=(info.grid_map.width, info.grid_map.height))
-
-    def draw(t: int) -> np.ndarray:
-        step = steps[t]
-        return render_frame(info.grid_map, step.robot_pose, step.targets, step.belief_mean, step.belief_cov,
-                            info.sensor_range, info.fov_deg, size=size, observed=step.observed,
-                            robot_path=robot_path[:t], target_paths=target_paths[:t], view=view,
-                            particles=step.particles)
-
-    images = [Image.fromarray(draw(t)) for t in shown]
+    gif = out.suffix.lower() == ".gif"
+    images = episode_images(run, episode if episode in ("first", "last") else _episode_index(episode), size,
+                            None if gif else frames, zoom)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if out.suffix.lower() == ".gif":
-        with written_whole(out) as temporary:
-            images[0].save(temporary, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
-        return images[0].size
-    strip = Image.new("RGB", (size * len(images), size))
-    outline = ImageDraw.Draw(strip)
-    for i, image in enumerate(images):
-        strip.paste(image, (i * size, 0))
-        outline.rectangle([i * size, 0, (i + 1) * size - 1, size - 1], outline=BORDER_COLOUR)
     with written_whole(out) as temporary:
+        if gif:
+            images[0].save(temporary, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
+            return images[0].size
+        strip = image_strip(images)
         strip.save(temporary)
     return strip.size
 
@@ -507,8 +375,11 @@ def run_command(args: argparse.Namespace) -> None:
             raise ValueError(f"--out {args.out}: plot writes a .png file")
         bootstrap = stats_config(args) if args.ci == "bootstrap" else None
         runs, baseline_groups, lower_better = compared_runs(args)
-        curves = plot(runs, args.metric, args.group_by, args.window, args.x_axis, args.out, args.title,
-                      baseline_groups, bootstrap)
+        figure, curves = curves_figure(runs, args.metric, args.group_by, args.window, args.x_axis, args.title,
+                                       baseline_groups, bootstrap)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        with written_whole(args.out) as temporary:
+            figure.savefig(temporary)
         baselines = [(label, *baseline_level(members, args.metric)) for label, members in baseline_groups]
         for curve in curves:
             print(f"{curve.label}: {int(curve.runs.max())} runs, final {args.metric} {curve.mean[-1]:.1f} "

@@ -188,15 +188,6 @@ def test_render_png_strip_and_gif(recorded, tmp_path, capsys):
     assert main(["render", str(recorded), "--out", str(tmp_path / "x.mp4")]) == 2
 
 
-def test_action_view_is_the_padded_square_around_the_episode():
-    from aia.apps.log_cli import action_view
-
-    points = np.array([[10.0, 20.0], [14.0, 22.0]])
-    # the padded box is x in [7, 17], y in [17, 25]: a square of side 10 around (12, 21)
-    assert action_view(points, margin=3.0, limit=(100.0, 100.0)) == pytest.approx((7.0, 16.0, 17.0, 26.0))
-    assert action_view(points, margin=60.0, limit=(100.0, 100.0)) is None  # not smaller than the map
-
-
 def test_plot_refuses_a_group_by_key_that_no_run_has(tmp_path, capsys):
     _fake_run(tmp_path / "m/0", "adfq", 0, [1.0, 2.0])
     assert main(["plot", str(tmp_path / "m"), "--group-by", "algoo", "--out", str(tmp_path / "c.png")]) == 2
