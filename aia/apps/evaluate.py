@@ -31,7 +31,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from aia.apps.hydra_app import hydra_app, run_valid_jobs
-from aia.apps.summary import write_json
+from aia.apps.output_files import write_json
 from aia.config.checks import require
 from aia.config.errors import ConfigError, one_line
 from aia.config.validation import check_checkpoint_file, overrides_group, validate_eval_config

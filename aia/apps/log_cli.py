@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aia.apps.summary import written_whole
+from aia.apps.output_files import written_whole
 from aia.config.errors import Stopped
 from aia.logging.curves import X_AXES, baseline_level, lower_is_better, select_runs
 from aia.logging.episode_images import episode_images, image_strip

@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from aia.apps.hydra_app import hydra_app
-from aia.apps.summary import write_json
+from aia.apps.output_files import write_json
 from aia.config.schemas import ROLLOUT_POLICIES
 from aia.config.validation import validate_rollout_config
 from aia.envs.config import to_tracking_config

@@ -6,17 +6,17 @@ import json
 
 import pytest
 
-import aia.apps.summary as summary
+import aia.apps.output_files as output_files
 from aia.config.errors import WriteFailed
 
 
 def test_a_summary_is_written_whole_and_a_full_disk_leaves_the_previous_one(tmp_path, full_disk):
     path = tmp_path / "eval.json"
-    summary.write_json(path, {"scores": [1.0, 2.0]})
+    output_files.write_json(path, {"scores": [1.0, 2.0]})
     assert json.loads(path.read_text()) == {"scores": [1.0, 2.0]}
-    full_disk(summary, room=5)
+    full_disk(output_files, room=5)
     with pytest.raises(WriteFailed) as info:
-        summary.write_json(path, {"scores": [3.0] * 100})
+        output_files.write_json(path, {"scores": [3.0] * 100})
     assert str(path) in str(info.value) and "No space left on device" in str(info.value)
     assert "\n" not in str(info.value)
     assert json.loads(path.read_text()) == {"scores": [1.0, 2.0]} and sorted(tmp_path.iterdir()) == [path]
@@ -25,11 +25,11 @@ def test_a_summary_is_written_whole_and_a_full_disk_leaves_the_previous_one(tmp_
 def test_an_interrupted_write_leaves_the_previous_file_and_no_part_of_the_new_one(tmp_path):
     path = tmp_path / "curves.png"
     path.write_bytes(b"previous")
-    with pytest.raises(KeyboardInterrupt), summary.written_whole(path) as temporary:
+    with pytest.raises(KeyboardInterrupt), output_files.written_whole(path) as temporary:
         assert temporary.suffix == ".png" and temporary.parent == tmp_path
         temporary.write_bytes(b"half of the ne")
         raise KeyboardInterrupt
     assert sorted(tmp_path.iterdir()) == [path] and path.read_bytes() == b"previous"
-    with summary.written_whole(path) as temporary:
+    with output_files.written_whole(path) as temporary:
         temporary.write_bytes(b"new")
     assert sorted(tmp_path.iterdir()) == [path] and path.read_bytes() == b"new"
