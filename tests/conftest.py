@@ -1,4 +1,5 @@
-"""Session-wide settings of the test run, and the fault-injecting ``full_disk`` fixture.
+"""Session-wide settings of the test run, the fault-injecting ``full_disk`` fixture, and two trained checkpoints
+that the evaluation's and ``aia-eval``'s tests play (``checkpoint``, ``map_checkpoint``).
 
 The suite runs in three pytest-xdist workers (``-n 3`` in pyproject's ``addopts``) on the 2-core machine: each
 worker, and every process a test starts, computes on one thread (two workers at two threads each were slower than
@@ -151,3 +152,34 @@ def full_disk(monkeypatch) -> Callable[..., None]:
         monkeypatch.setattr(module, "open", faulty_open, raising=False)
 
     return install
+
+
+@pytest.fixture(scope="session")
+def checkpoint(tmp_path_factory) -> Path:
+    """The checkpoint of a short DQN run on the default setting (200 frames)."""
+    from hydra import compose, initialize_config_module
+
+    from aia.training import train
+
+    out = tmp_path_factory.mktemp("run")
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=["frames=200", "env.max_steps=40", "warmup_frames=100",
+                                                      "logger=none", "eval.episodes=2", "batch_size=16"])
+    train(cfg, out)
+    return out / "checkpoints" / "last.pt"
+
+
+@pytest.fixture(scope="session")
+def map_checkpoint(tmp_path_factory) -> Path:
+    """The checkpoint of a policy trained on ttenv v4's map observation (8 x 8 images)."""
+    from hydra import compose, initialize_config_module
+
+    from aia.training import train
+    from tests.training.test_population import MAP_OBSERVATION
+
+    out = tmp_path_factory.mktemp("map_run")
+    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=[*MAP_OBSERVATION, "frames=60", "warmup_frames=40",
+                                                      "eval.every_episodes=3"])
+    train(cfg, out)
+    return out / "checkpoints" / "last.pt"

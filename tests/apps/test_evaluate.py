@@ -11,69 +11,11 @@ import sys
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_module
 
 import aia.apps.evaluate as evaluate_app
-from aia.apps.evaluate import evaluate_checkpoint, evaluate_planner, evaluate_scripted_seeds
-from aia.apps.rollout import score_policy
+from aia.evaluation.standalone import evaluate_checkpoint
 from aia.logging import read_run
-from aia.training import train
 from tests.apps.test_bad_inputs import run_app
-from tests.training.test_population import MAP_OBSERVATION
-
-
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    out = tmp_path_factory.mktemp("run")
-    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
-        cfg = compose(config_name="train", overrides=["frames=200", "env.max_steps=40", "warmup_frames=100",
-                                                      "logger=none", "eval.episodes=2", "batch_size=16"])
-    train(cfg, out)
-    return out / "checkpoints" / "last.pt"
-
-
-@pytest.fixture(scope="module")
-def map_checkpoint(tmp_path_factory):
-    """A policy trained on ttenv v4's map observation (8 x 8 images)."""
-    out = tmp_path_factory.mktemp("map_run")
-    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[*MAP_OBSERVATION, "frames=60", "warmup_frames=40",
-                                                      "eval.every_episodes=3"])
-    train(cfg, out)
-    return out / "checkpoints" / "last.pt"
-
-
-def test_evaluation_is_seeded_and_batched(checkpoint):
-    first = evaluate_checkpoint(checkpoint, episodes=6, epsilon=0.05, seed=3, device="cpu")
-    again = evaluate_checkpoint(checkpoint, episodes=6, epsilon=0.05, seed=3, device="cpu")
-    other = evaluate_checkpoint(checkpoint, episodes=6, epsilon=0.05, seed=4, device="cpu")
-    assert first["scores"] == again["scores"] and first["scores"] != other["scores"]
-    assert len(first["scores"]) == 6 and first["frames_trained"] == 200 and first["algo"] == "dqn"
-    assert first["score_mean"] == pytest.approx(sum(first["scores"]) / 6, rel=1e-5)
-
-
-def test_a_checkpoint_is_read_once_per_state_of_its_file(tmp_path, checkpoint):
-    copy = tmp_path / "copy.pt"
-    copy.write_bytes(checkpoint.read_bytes())
-    first = evaluate_app.load_checkpoint(copy)
-    assert evaluate_app.load_checkpoint(str(copy)) is first  # the validation, the guard and the evaluation
-    os.utime(copy, ns=(copy.stat().st_atime_ns, copy.stat().st_mtime_ns + 1))  # written again: read again
-    again = evaluate_app.load_checkpoint(copy)
-    assert again is not first and again["state"]["frames"] == first["state"]["frames"]
-    copy.write_bytes(copy.read_bytes()[:1000])  # damaged since: refused, not the copy read before
-    with pytest.raises(ValueError, match="copy.pt.*not a whole zip archive"):
-        evaluate_app.load_checkpoint(copy)
-
-
-def test_bad_checkpoints_are_named(tmp_path, checkpoint):
-    with pytest.raises(ValueError, match="missing.pt.*expected an existing checkpoint"):
-        evaluate_checkpoint(tmp_path / "missing.pt", 2, 0.05, 0, "cpu")
-    junk = tmp_path / "junk.pt"
-    junk.write_text("not a checkpoint")
-    with pytest.raises(ValueError, match="junk.pt.*not a whole zip archive"):
-        evaluate_checkpoint(junk, 2, 0.05, 0, "cpu")
-    with pytest.raises(ValueError, match="epsilon=1.5"):
-        evaluate_checkpoint(checkpoint, 2, 1.5, 0, "cpu")
 
 
 def test_app_prints_and_writes_its_log(tmp_path, checkpoint):
@@ -90,34 +32,6 @@ def test_app_prints_and_writes_its_log(tmp_path, checkpoint):
     info, frames = run.episode("first")
     assert info.frame == 200 and len(frames) == 41  # world 0's episode of 40 steps, labelled by frames trained
     assert len(json.loads((tmp_path / "eval.json").read_text())["scores"]) == 3
-
-
-def _arvi_config(*overrides):
-    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
-        return compose(config_name="eval", overrides=["policy=arvi", "env.max_steps=10", "planner.time_budget=null",
-                                                      "planner.max_passes=1", *overrides])
-
-
-def test_arvi_is_scored_through_the_evaluation_path():
-    cfg = _arvi_config()
-    first = evaluate_planner(cfg.env, cfg.planner, episodes=3, seed=1, device="cpu")
-    again = evaluate_planner(cfg.env, cfg.planner, episodes=3, seed=1, device="cpu")
-    assert first["scores"] == again["scores"] and len(first["scores"]) == 3  # deterministic budget: reproducible
-    assert first["planner"]["horizon"] == 12 and first["planner"]["eps"] == "inf"
-    with pytest.raises(ValueError, match="planner.horizon=0"):
-        evaluate_planner(cfg.env, _arvi_config("planner.horizon=0").planner, episodes=1, seed=1, device="cpu")
-
-
-def test_pursuit_scores_as_aia_rollout_and_its_seeds_together_as_each_alone():
-    with initialize_config_module(config_module="aia.conf", version_base="1.3"):
-        cfg = compose(config_name="eval", overrides=["policy=pursuit", "env=ttenv_v2", "env.max_steps=15"])
-        rollout = compose(config_name="rollout", overrides=["env=ttenv_v2", "env.max_steps=15", "num_worlds=3",
-                                                            "seed=1"])
-    together = evaluate_scripted_seeds("pursuit", cfg.env, 3, [1, 2], "cpu", standoff=cfg.pursuit_standoff)
-    alone = [evaluate_scripted_seeds("pursuit", cfg.env, 3, [seed], "cpu")[0] for seed in (1, 2)]
-    assert together == alone and together[0]["scores"] != together[1]["scores"]
-    assert together[0]["policy"] == "pursuit" and together[0]["pursuit_standoff"] == 0.5
-    assert together[0]["score_mean"] == pytest.approx(score_policy(rollout, "pursuit")["score_mean"], rel=1e-6)
 
 
 def test_app_runs_arvi(tmp_path):  # an unknown policy is named in tests/apps/test_bad_inputs.py

@@ -21,6 +21,7 @@ def test_a_name_is_imported_when_asked_for_and_another_is_an_attribute_error():
 
 def test_the_packages_load_their_torch_modules_only_when_asked():
     code = ("import sys, aia.envs, aia.planners, aia.logging, aia.training.checkpoint_names\n"
+            "import aia.evaluation.standalone, aia.evaluation.checkpoints\n"
             "assert 'torch' not in sys.modules\n"
             "from aia.planners import ARVIPolicy\nprint(ARVIPolicy.__module__, 'torch' in sys.modules)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

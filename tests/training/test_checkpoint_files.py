@@ -12,8 +12,8 @@ import torch
 from hydra import compose, initialize_config_module
 
 import aia.training.checkpoint_files as checkpoint_files
-from aia.apps.evaluate import load_checkpoint
 from aia.config.errors import ConfigError, WriteFailed
+from aia.evaluation.checkpoints import load_checkpoint
 from aia.training import train
 from aia.training.checkpoint_files import checkpoint_damage, save_checkpoints
 from aia.training.resuming import load_resumable, resume_path, resume_point
