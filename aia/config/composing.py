@@ -65,8 +65,9 @@ def composition_error(err: Exception, schema: type) -> ConfigError | None:
 
 def node_error(err: OmegaConfBaseException, node: Any, schema: type, prefix: str) -> ConfigError:
     """The :class:`ConfigError` of a config ``node`` (a user's dict or ``DictConfig``) that OmegaConf could not
-    merge into its dataclass (``err``): the node sits at dotted ``prefix`` (``"env."``) of a config of ``schema``,
-    and the error is worded as :func:`composition_error` words the same value on a command line."""
+    merge into its dataclass ``schema`` (``err``): the node sits at dotted ``prefix`` (``"env."``,
+    ``"planner."``), and the error is worded as :func:`composition_error` words the same value on a command line
+    (a field's declared check, else its type; a key it does not have, with the keys it has there)."""
     from aia.config.validation import unknown_key_allowed  # see composition_error
 
     key, value = err.full_key, err.value
@@ -74,12 +75,12 @@ def node_error(err: OmegaConfBaseException, node: Any, schema: type, prefix: str
         key, value = _value_for_group(node, err.object_type) or ("", value)
     elif isinstance(err, ConfigKeyError):
         value = OmegaConf.select(OmegaConf.create(node), key)
-    key = prefix + key
+    named = (prefix + key).rstrip(".")
     if isinstance(err, ValidationError):
-        check = declared_check(schema, key)
-        return ConfigError(key, value, check.allowed if check is not None else _type_wanted(err, key))
-    allowed = unknown_key_allowed(schema, key) if isinstance(err, ConfigKeyError) else None
-    return ConfigError(key, value, allowed or f"a value of the field's type ({one_line(err.msg)})")
+        check = declared_check(schema, key) if key else None
+        return ConfigError(named, value, check.allowed if check is not None else _type_wanted(err, named))
+    allowed = unknown_key_allowed(schema, key, prefix) if isinstance(err, ConfigKeyError) else None
+    return ConfigError(named, value, allowed or f"a value of the field's type ({one_line(err.msg)})")
 
 
 def _value_for_group(node: Any, dataclass: type | None, prefix: str = "") -> tuple[str, Any] | None:

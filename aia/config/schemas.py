@@ -236,7 +236,7 @@ def keys_where(schema: type, flag: str) -> tuple[str, ...]:
 def declared_check(schema: type, key: str) -> Check | None:
     """The check declared for dotted ``key`` (an entry of a list field: its list's) in ``schema``, if any."""
     key = key.split("[")[0]
-    return next((item.metadata["check"] for k, item in settings(schema) if k == key), None)
+    return next((item.metadata.get("check") for k, item in settings(schema) if k == key), None)
 
 
 _STORE = ConfigStore.instance()

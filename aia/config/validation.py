@@ -77,22 +77,23 @@ def _fields(schema: type | dict[str, type], prefix: str) -> dict[str, Any]:
     return fields
 
 
-def unknown_key_allowed(schema: type, key: str) -> str | None:
-    """What is allowed in place of dotted ``key`` in a config of ``schema`` (an app's): the keys of the deepest
-    group of keys on its path, the closest name first if one is close; ``None`` if ``key`` is a field. A
-    group's keys are its options' together."""
+def unknown_key_allowed(schema: type, key: str, prefix: str = "") -> str | None:
+    """What is allowed in place of dotted ``key`` in a config of ``schema`` (an app's, or a node's own schema
+    that sits at dotted ``prefix``, such as ``"planner."``, named so in the words): the keys of the deepest group
+    of keys on its path, the closest name first if one is close; ``None`` if ``key`` is a field. A group's keys
+    are its options' together."""
     parts = key.split(".")
     current: Any = schema
     for depth, part in enumerate(parts):
-        prefix = ".".join(parts[:depth])
-        fields = _fields(current, prefix + "." if prefix else "")
+        path = ".".join(parts[:depth])
+        fields = _fields(current, path + "." if path else "")
         last = depth + 1 == len(parts)
         if part in fields and (last or fields[part] is not None):
             if last:
                 return None
             current = fields[part]
             continue
-        return keys_allowed(list(fields), prefix, part)
+        return keys_allowed(list(fields), (prefix + path).rstrip("."), part)
     return None
 
 

@@ -19,7 +19,6 @@ from omegaconf.errors import OmegaConfBaseException
 
 from aia.config.checks import check_choice, check_number, require
 from aia.config.composing import node_error
-from aia.config.schemas import SCHEMAS
 
 # The names the env's fields choose among, here and not beside their torch code (which imports them from here), so
 # that the schema and its checks load without torch: the apps' --help and refusals answer in about half a second.
@@ -333,7 +332,7 @@ def to_tracking_config(cfg: DictConfig | TrackingConfig) -> TrackingConfig:
         merged = OmegaConf.merge(OmegaConf.structured(TrackingConfig), cfg)
         return OmegaConf.to_object(merged)
     except OmegaConfBaseException as err:
-        raise node_error(err, cfg, SCHEMAS["env_setting"], "env.") from None
+        raise node_error(err, cfg, TrackingConfig, "env.") from None
 
 
 # A root config, not a member of the env group: `env=<name>` offers only the settings. Presets start with

@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Optional
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from aia.config.checks import Number
+from aia.config.composing import node_error
 from aia.config.errors import ConfigError
-from aia.config.schemas import declared_check, setting, settings
+from aia.config.schemas import setting, settings
 
 # The ranges of the counts, and of the budgets (null disables one).
 _COUNT = Number(ge=1, integer=True)
@@ -74,13 +75,4 @@ def to_arvi_config(cfg: DictConfig | ARVIConfig | dict) -> ARVIConfig:
     try:
         return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(ARVIConfig), cfg))
     except OmegaConfBaseException as err:
-        key = str(getattr(err, "key", None) or "")
-        given = OmegaConf.to_container(OmegaConf.create(cfg))
-        check = declared_check(ARVIConfig, key) if key else None
-        if check is None:
-            from aia.config.validation import keys_allowed  # it checks planner configs through this module
-
-            names = [item.name for item in fields(ARVIConfig)]
-            raise ConfigError(f"planner.{key}" if key else "planner", given.get(key, given),
-                              keys_allowed(names, "planner", key)) from None
-        raise ConfigError(f"planner.{key}", given[key], check.allowed) from None
+        raise node_error(err, cfg, ARVIConfig, "planner.") from None
