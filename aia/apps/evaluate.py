@@ -67,8 +67,9 @@ def main(cfg: DictConfig) -> float:
 
 def _validate(cfg: DictConfig, overrides: Sequence[str], out_dir: Path) -> DictConfig | None:
     """:func:`~aia.config.validation.validate_eval_config`, a checkpoint's setting checked
-    (:func:`check_setting`), and the job's folder ``out_dir`` checked to hold no run log (one is never
-    overwritten), before any run log is written; returns that setting (:func:`checkpoint_setting`)."""
+    (:func:`~aia.evaluation.checkpoints.check_setting`), and the job's folder ``out_dir`` checked to hold no run
+    log (one is never overwritten), before any run log is written; returns that setting
+    (:func:`checkpoint_setting`)."""
     validate_eval_config(cfg, overrides)
     require(not (out_dir / RUN_LOG).exists(), "output folder", str(out_dir),
             f"a folder without a run log ({RUN_LOG} is there already, and a run log is never overwritten: "
@@ -96,9 +97,9 @@ def evaluate_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path]) -> list[
 def run_jobs(cfgs: Sequence[DictConfig], out_dirs: Sequence[Path],
              settings: Sequence[DictConfig | None] | None = None) -> list[float]:
     """Evaluate validated configs that differ only in ``seed``, each writing its ``eval.json`` and ``run.mcap``
-    to its folder: ``policy=arvi`` or ``pursuit`` in one rollout (:func:`evaluate_scripted_seeds`), checkpoints
-    one by one, job ``k``'s in ``settings[k]`` (:func:`checkpoint_setting`; ``None``, or no ``settings``: its own).
-    Each job's score mean."""
+    to its folder: ``policy=arvi`` or ``pursuit`` in one rollout
+    (:func:`~aia.evaluation.standalone.evaluate_scripted_seeds`), checkpoints one by one, job ``k``'s in
+    ``settings[k]`` (:func:`checkpoint_setting`; ``None``, or no ``settings``: its own). Each job's score mean."""
     import torch
 
     from aia.logging import MCAPLogger

@@ -27,7 +27,8 @@ if TYPE_CHECKING:
 def evaluate_checkpoint(path: str | Path, episodes: int, epsilon: float, seed: int, device: str,
                         logger: MCAPLogger | None = None, setting: DictConfig | None = None) -> dict:
     """Scores of the checkpoint's policy on ``episodes`` fresh episodes (logged to ``logger`` if given), in
-    ``setting`` (an env config: :func:`check_setting`) or, without one, in the checkpoint's own."""
+    ``setting`` (an env config: :func:`~aia.evaluation.checkpoints.check_setting`) or, without one, in the
+    checkpoint's own."""
     from tensordict.nn import TensorDictSequential
 
     from aia.envs import make_env
