@@ -33,15 +33,14 @@
 # $OUT/evals/<map>/<trained on>/<method=...,seed=...> (an evaluation already written is kept: a stopped call
 # goes on where it stopped), ARVI to $OUT/arvi/<map>/seed=<seed>.
 set -euo pipefail
-# given, seed_list, parse_phases, unfinished, resuming, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
+# given, given_some, train_extras, seed_list, parse_phases, unfinished, resuming, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
 # shellcheck source-path=SCRIPTDIR source=lib/protocol.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
 # Everything is checked before anything runs: a bad or empty value ends the script in one line (exit 2).
 given SEEDS 0-4 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10"
 given METHODS dqn,adfq_ts "some of conf/method/, comma-separated"
-given TRAINED_ON "paper_obstacles1 random_obstacles random_obstacles_local_map" \
-  "some of paper_obstacles1 random_obstacles random_obstacles_local_map"
+given_some TRAINED_ON "paper_obstacles1 random_obstacles random_obstacles_local_map" "training setting"
 given EPISODES 100 "a number of episodes"
 given EVAL_SEED 1000 "a seed"
 given ARVI_SEEDS 0-4 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10 (PHASES without arvi for no ARVI)"
@@ -64,15 +63,7 @@ declare -A TRAINING=(
   [random_obstacles]="experiment=random_obstacles"
   [random_obstacles_local_map]="experiment=random_obstacles env.features.local_map=occupancy"
 )
-for trained in $TRAINED_ON; do
-  if [[ -z "${TRAINING[$trained]:-}" ]]; then
-    echo "TRAINED_ON: unknown training setting '$trained'; expected some of ${!TRAINING[*]}" >&2
-    exit 2
-  fi
-done
-FRAMES_OVERRIDE=()
-if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
-read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
+train_extras
 
 mkdir -p "$OUT/tables"
 OUT_ABS=$(cd "$OUT" && pwd)

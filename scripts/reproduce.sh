@@ -62,12 +62,12 @@
 # with which the learner runs already there continue (a finished run stays as it is) and the ARVI runs already
 # finished are kept.
 set -euo pipefail
-# given, seed_list, parse_phases, unfinished, resuming, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
+# given, given_some, train_extras, seed_list, parse_phases, unfinished, resuming, machine_speed, phase, run, job, throttle, drain; the stop signals' trap
 # shellcheck source-path=SCRIPTDIR source=lib/protocol.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib/protocol.sh"
 
 # Everything is checked before anything runs: a bad or empty value ends the script in one line (exit 2).
-given SETTINGS "empty1 obstacles1 small2 small3" "some of empty1 obstacles1 small2 small3"
+given_some SETTINGS "empty1 obstacles1 small2 small3" setting
 given SEEDS 0,1,2,3,4 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10"
 given ARVI_SEEDS 0,1,2,3,4,5,6,7,8,9 "seeds, e.g. 0,1,2 or 0-19 or 0-4,10 (ARVI_MIN_RANGES= for no ARVI)"
 given JOBS 2 "a number of processes"
@@ -113,9 +113,7 @@ if [[ -n "${ARVI_NODES:-}" ]]; then
 else
   ARVI_BUDGET_OVERRIDES=("planner.time_budget=$ARVI_BUDGET")
 fi
-FRAMES_OVERRIDE=()
-if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
-read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
+train_extras
 
 declare -A WHERE=(
   [empty1]="--where env.map=empty"
@@ -123,12 +121,6 @@ declare -A WHERE=(
   [small2]="--where env.map=empty_small --where env.num_targets=2"
   [small3]="--where env.map=empty_small --where env.num_targets=3"
 )
-for setting in $SETTINGS; do
-  if [[ -z "${WHERE[$setting]:-}" ]]; then
-    echo "unknown setting '$setting': expected some of empty1 obstacles1 small2 small3" >&2
-    exit 2
-  fi
-done
 mkdir -p "$OUT" "$FIGURES"
 machine_speed start
 start=$(date +%s)

@@ -15,6 +15,28 @@ given() {
   fi
 }
 
+# given_some NAME ALLOWED WHAT: as given, NAME defaulting to all of ALLOWED (words); a word of $NAME that is not one
+# of them is refused in one line naming it, a WHAT, and ALLOWED (exit 2)
+given_some() {
+  local item
+  given "$1" "$2" "some of $2"
+  for item in ${!1}; do
+    if [[ " $2 " != *" $item "* ]]; then
+      echo "$1: unknown $3 '$item'; expected some of $2" >&2
+      exit 2
+    fi
+  done
+}
+
+# train_extras: what the protocol adds to every aia-train command, FRAMES_OVERRIDE (frames=$FRAMES where FRAMES is
+# set and not empty) and TRAIN_EXTRA ($TRAIN_OVERRIDES, word by word)
+# shellcheck disable=SC2034  # the protocol scripts read them
+train_extras() {
+  FRAMES_OVERRIDE=()
+  if [[ -n "${FRAMES:-}" ]]; then FRAMES_OVERRIDE=("frames=$FRAMES"); fi
+  read -r -a TRAIN_EXTRA <<< "${TRAIN_OVERRIDES:-}"
+}
+
 # whole_number NAME: exit 2 unless $NAME is a whole number from 1 on
 whole_number() {
   if [[ ! "${!1}" =~ ^[1-9][0-9]*$ ]]; then echo "$1='${!1}': expected a whole number from 1 on" >&2; exit 2; fi
