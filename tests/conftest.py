@@ -34,38 +34,34 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     torch.set_num_threads(1)
 
 
-# The file the controller makes once the kernels' cache is made (its path in the workers' environment), and how long
-# a worker waits for it.
-KERNEL_CACHE_READY = "AIA_TEST_KERNEL_CACHE_READY"
-KERNEL_CACHE_WAIT_S = 600
+# A folder of this run's own (its path in the workers' environment): the kernels' ready file, which the controller
+# makes once the kernels' cache is made, and the SLURM_STARTED mark of a run whose tests started the local cluster.
+TEST_RUN_DIR = "AIA_TEST_RUN_DIR"
+KERNELS_READY = "kernels-ready"
+SLURM_STARTED = "slurm-started"
+KERNEL_CACHE_WAIT_S = 600  # how long a worker waits for the kernels' cache
 
 
-_slurm_was_up: bool | None = None  # in the run's controller: whether the local SLURM cluster was up at its start
-
-
-def _slurm_up() -> bool:
-    from tests.cluster.conftest import script  # the cluster tests' own call of scripts/slurm_local.sh
-
-    return script("status", timeout=60).returncode == 0
+def run_dir() -> Path | None:
+    """This test run's own folder (:data:`TEST_RUN_DIR`), ``None`` outside a run that made one."""
+    folder = os.environ.get(TEST_RUN_DIR)
+    return Path(folder) if folder else None
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """In the run's controller (or its one process): note whether the local SLURM cluster is up (the SLURM tests
-    start it; :func:`pytest_unconfigure` stops it if this run did). With workers, also start making the kernels'
-    cache (:mod:`tests.kernel_cache`, its two parts side by side) while the workers start and collect; each
-    worker's first test waits for it (:func:`kernel_cache_made`). A part that fails is left to the tests that use
-    its kernels to report."""
-    global _slurm_was_up
+    """In the run's controller (or its one process): make the run's own folder (:func:`run_dir`). With workers,
+    also start making the kernels' cache (:mod:`tests.kernel_cache`, its two parts side by side) while the workers
+    start and collect; each worker's first test waits for it (:func:`kernel_cache_made`). A part that fails is
+    left to the tests that use its kernels to report."""
     if os.environ.get("PYTEST_XDIST_WORKER"):
         return
-    _slurm_was_up = _slurm_up()
+    folder = Path(tempfile.mkdtemp(prefix="aia-test-run-"))
+    os.environ[TEST_RUN_DIR] = str(folder)  # the workers, started after this hook, inherit it
     if not getattr(config.option, "numprocesses", None):
         return
     from tests.kernel_cache import PARTS
 
     root = Path(__file__).resolve().parents[1]
-    ready = Path(tempfile.mkdtemp(prefix="aia-kernel-cache-")) / "ready"
-    os.environ[KERNEL_CACHE_READY] = str(ready)  # the workers, started after this hook, inherit it
     parts = [subprocess.Popen([sys.executable, "-m", "tests.kernel_cache", part], cwd=root,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for part in PARTS]
 
@@ -73,22 +69,22 @@ def pytest_configure(config: pytest.Config) -> None:
         for part in parts:
             part.wait()
         with contextlib.suppress(FileNotFoundError):  # the session ended first (pytest_unconfigure)
-            ready.touch()
+            (folder / KERNELS_READY).touch()
 
     threading.Thread(target=mark_ready, daemon=True).start()
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
-    """In the run's controller: remove the kernels' ready file, and stop the SLURM cluster if this run started it."""
-    if os.environ.get("PYTEST_XDIST_WORKER"):
+    """In the run's controller: stop the local SLURM cluster if this run's tests started it (another run's cluster,
+    or one that was up before, is left running), and remove the run's folder."""
+    folder = run_dir()
+    if os.environ.get("PYTEST_XDIST_WORKER") or folder is None:
         return
-    ready = os.environ.get(KERNEL_CACHE_READY)
-    if ready:
-        shutil.rmtree(Path(ready).parent, ignore_errors=True)
-    if _slurm_was_up is False and _slurm_up():
+    if (folder / SLURM_STARTED).exists():
         from tests.cluster.conftest import script
 
         script("stop", timeout=120)
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 # The modules of the suite's longest tests (the tiny protocol, the SLURM jobs, the launcher's signals, training
@@ -108,11 +104,11 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 @pytest.fixture(scope="session", autouse=True)
 def kernel_cache_made() -> None:
     """In a worker, before its first test: wait until the controller has made the kernels' cache."""
-    ready = os.environ.get(KERNEL_CACHE_READY)
-    if not ready or not os.environ.get("PYTEST_XDIST_WORKER"):
+    folder = run_dir()
+    if folder is None or not os.environ.get("PYTEST_XDIST_WORKER"):
         return
     deadline = time.monotonic() + KERNEL_CACHE_WAIT_S
-    while not Path(ready).exists() and time.monotonic() < deadline:
+    while not (folder / KERNELS_READY).exists() and time.monotonic() < deadline:
         time.sleep(0.1)
 
 

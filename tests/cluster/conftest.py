@@ -1,7 +1,7 @@
 """A real single-node SLURM cluster for the tests (scripts/slurm_local.sh), shared by the whole session.
 
 ``slurm_cluster`` starts the cluster (installing its Debian packages on a fresh machine); tests/conftest.py stops
-it at the end of the run if it was not up at its start. Its ``sweep`` runs ``aia-train -m hydra/launcher=slurm``
+it at the end of the run if this run started it. Its ``sweep`` runs ``aia-train -m hydra/launcher=slurm``
 with small per-job resources and a unique SLURM job name (``sweep_command`` gives the command line for a
 test that acts on the jobs while they run, e.g. ``scontrol requeue``), and ``jobs`` reads back what
 ``sacct`` recorded of that sweep's jobs, so a test can check the scheduler's view as well as the files.
@@ -102,8 +102,14 @@ class SlurmCluster:
 @pytest.fixture(scope="session")
 def slurm_cluster() -> SlurmCluster:
     """The local SLURM cluster, started (and its packages installed) if it is not up. Both workers may run SLURM
-    tests (pytest-xdist 3.8 cannot group tests under pytest 9.2's node ids), so no worker stops it: the run's
-    controller does at its end if it was not up at its start (tests/conftest.py)."""
+    tests (pytest-xdist 3.8 cannot group tests under pytest 9.2's node ids), so no worker stops it: a worker that
+    finds it down marks the run as its starter, and the run's controller stops it at its end (tests/conftest.py);
+    a cluster that another test run started is left to that run."""
+    from tests.conftest import SLURM_STARTED, run_dir
+
+    folder = run_dir()
+    if folder is not None and script("status", timeout=60).returncode != 0:
+        (folder / SLURM_STARTED).touch()
     try:
         started = script("start", timeout=START_TIMEOUT_S)
     except subprocess.TimeoutExpired:
