@@ -4,8 +4,8 @@ nonsense figure) after it.
 
 :func:`parse_checked` checks ``--device`` and ``--out``; the ``type=`` callables here (:data:`POSITIVE_INT`,
 :data:`NON_NEGATIVE_INT`, :data:`POSITIVE_NUMBER`, :func:`number`, :func:`comma_separated`, :func:`subset_of`,
-:func:`env_setting`, :func:`git_commit`, :func:`folder`) check the other options while argparse reads them, and
-raise :class:`Refused`, which :func:`parse_checked` words as above."""
+:func:`env_setting`, :func:`env_case`, :func:`git_commit`, :func:`folder`) check the other options while argparse
+reads them, and raise :class:`Refused`, which :func:`parse_checked` words as above."""
 
 from __future__ import annotations
 
@@ -86,6 +86,22 @@ def env_setting(text: str) -> str:
 
     if text not in available_settings():
         raise Refused(text, f"an env setting among {', '.join(available_settings())}")
+    return text
+
+
+def env_case(text: str) -> str:
+    """A ``type=`` for an env case: a preset (:func:`env_setting`), optionally with comma-separated overrides of its
+    env fields after a colon (``ttenv_v2:belief.filter=particle,belief.particles=256``), composed as the env
+    composes them, so that a bad key or value is refused before anything is measured."""
+    name, colon, overrides = text.partition(":")
+    env_setting(name)
+    if colon:
+        from aia.envs.factory import load_env_config
+
+        try:
+            load_env_config(name, [item for item in overrides.split(",") if item])
+        except ConfigError as err:
+            raise Refused(text, f"{name}'s env fields after the colon, comma-separated, but {err}") from None
     return text
 
 

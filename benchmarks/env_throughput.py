@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 
 import torch
-from _cli import NON_NEGATIVE_INT, POSITIVE_INT, env_setting, git_commit, parse_checked
+from _cli import NON_NEGATIVE_INT, POSITIVE_INT, env_case, git_commit, parse_checked
 
 from aia.envs import make_env
 from aia.logging.mcap_logger import git_state
@@ -167,7 +167,9 @@ def run_case(case: dict, env: dict | None = None) -> dict | str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--settings", nargs="+", type=env_setting, default=list(SETTINGS))
+    parser.add_argument("--settings", nargs="+", type=env_case, default=list(SETTINGS),
+                        help="env cases: presets, each optionally with overrides after a colon "
+                             "(ttenv_v2:belief.filter=particle,belief.particles=256)")
     parser.add_argument("--batch-sizes", nargs="+", type=POSITIVE_INT, default=[1, 16, 256, 4096])
     parser.add_argument("--steps", type=POSITIVE_INT, default=100, help="batched steps per timed window")
     parser.add_argument("--repeats", type=POSITIVE_INT, default=5,

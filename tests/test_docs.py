@@ -172,6 +172,35 @@ def test_cheap_bash_lines_run_as_written(scratch, run_log):
     assert ran == RUN
 
 
+BENCHMARK_COMMAND = re.compile(r"^python3? benchmarks/(\w+)\.py(?:\s|$)")
+
+
+def benchmark_commands() -> list[tuple[str, str, list[str]]]:
+    """(page, benchmark, arguments) of every benchmark command the pages give: their bash lines and their inline
+    code (``python benchmarks/population.py --frames 600``, a command beside a figure), shell comments dropped;
+    those with a placeholder (``<...>``) left out."""
+    found = []
+    for page in PAGES:
+        inline = [code.replace("\n", " ") for code in re.findall(r"`([^`]+)`", FENCE.sub("", page.read_text()))]
+        for command in [command for _, command in bash_lines(page)] + inline:
+            command = re.sub(r"\s+#\s.*$", "", command.strip())
+            match = BENCHMARK_COMMAND.match(command)
+            if match and "<" not in command:
+                found.append((page.name, match[1], shlex.split(command)[2:]))
+    return found
+
+
+def test_every_benchmark_command_of_the_docs_parses_with_its_options(monkeypatch):
+    # the docs' bash lines of benchmarks are not run (EXCLUDED: minutes each); their options are checked here, in
+    # process: --help last, argparse converts (and so checks) every option before it, then exits 0
+    from tests.benchmarks.test_benchmarks import _main, _script
+
+    commands = benchmark_commands()
+    assert {name for _, name, _ in commands} >= {"env_throughput", "population", "arvi", "map_generation"}
+    for page, name, args in commands:
+        assert _main(_script(name, monkeypatch), [*args, "--help"], monkeypatch) == 0, (page, name, args)
+
+
 def test_links_between_the_pages_resolve():
     """Every relative link of README.md and docs/ names a file that exists, and its #anchor a heading there."""
     for page in PAGES:

@@ -38,6 +38,9 @@ def test_a_benchmark_imports_and_prints_its_help(name, monkeypatch, capsys):
 
 @pytest.mark.parametrize("name, args, said", [
     ("env_throughput", ["--settings", "obstacles4"], ["--settings 'obstacles4'", "obstacles1, obstacles1_2019"]),
+    ("env_throughput", ["--settings", "ttenv_v2:belief.filtr=particle"],
+     ["--settings 'ttenv_v2:belief.filtr=particle': expected ttenv_v2's env fields after the colon",
+      "(did you mean env.belief.filter?)"]),
     ("env_throughput", ["--batch-sizes", "16", "0"], ["--batch-sizes 0: expected an integer >= 1"]),
     ("map_generation", ["--batch-size", "0"], ["--batch-size 0: expected an integer >= 1"]),
     ("arvi", ["--quality-setting", "bar"], ["--quality-setting 'bar': expected an env setting among", "empty1"]),
