@@ -1,7 +1,9 @@
 """The code blocks of README.md and docs/*.md run as written: every ```python block (but those of
 ``PYTHON_IMPORTS_ONLY``, whose imports run, each with the reason), and the ```bash lines that are cheap. Every
 other bash line must match one of ``EXCLUDED`` (a pattern and the reason it is not run here), so a new command
-in the docs is either run or excluded with its reason.
+in the docs is either run or excluded with its reason. The commands not run are still checked where it is cheap: every
+``aia-train``/``aia-eval``/``aia-rollout`` command is composed and validated as its app would, and every benchmark
+command is parsed by its benchmark's own options, so that a renamed key or option fails here, not for a reader.
 
 The python blocks of one page run in order in one namespace, in a scratch folder, seeded; their sizes are the
 docs' own (small). The bash lines run in the same scratch folder, a run's log placeholder
@@ -199,6 +201,51 @@ def test_every_benchmark_command_of_the_docs_parses_with_its_options(monkeypatch
     assert {name for _, name, _ in commands} >= {"env_throughput", "population", "arvi", "map_generation"}
     for page, name, args in commands:
         assert _main(_script(name, monkeypatch), [*args, "--help"], monkeypatch) == 0, (page, name, args)
+
+
+APP_COMMAND = re.compile(r"^aia-(train|eval|rollout)(?:\s|$)")
+CONFIGS = {"train": "train", "eval": "eval", "rollout": "rollout"}
+# app commands of the docs that are not composed, and why: a placeholder or elision to fill in, a refusal shown on
+# purpose (history.md), a file or device this machine lacks, a search space (an optuna sweeper's own syntax)
+NOT_COMPOSED = (r"<|\.\.\.|\[overrides\]|=k\b|--help|checkpoint=|resume=outputs|device=cuda|hydra/sweeper=",)
+
+
+def app_commands() -> list[tuple[str, str, list[str]]]:
+    """(page, app, overrides) of every ``aia-train``/``aia-eval``/``aia-rollout`` command with overrides that the
+    pages give (bash lines and inline code, but history.md's, which shows refusals): ``-m`` dropped and each
+    swept value's first (``seed=0,1,2`` -> ``seed=0``), Hydra's own settings (``hydra...``) left out."""
+    found = []
+    for page in PAGES:
+        if page.name == "history.md":
+            continue
+        inline = [code.replace("\n", " ") for code in re.findall(r"`([^`]+)`", FENCE.sub("", page.read_text()))]
+        for command in [command for _, command in bash_lines(page)] + inline:
+            command = re.sub(r"\s+#\s.*$", "", command.strip())
+            match = APP_COMMAND.match(command)
+            if not match or re.search(NOT_COMPOSED[0], command):
+                continue
+            words = [word for word in shlex.split(command)[1:] if word != "-m" and not word.startswith("hydra")]
+            overrides = [re.sub(r"^([^=\[]+=)([^,\[]*),.*$", r"\1\2", word) for word in words]
+            if overrides:
+                found.append((page.name, match[1], overrides))
+    return found
+
+
+def test_every_app_command_of_the_docs_composes_and_validates():
+    # the docs' app commands train, plan or roll out for minutes (EXCLUDED); their overrides are composed and
+    # validated here as the app would, so that a renamed key or a preset that moved fails a test, not a reader
+    from aia.config.composing import compose_config
+    from aia.config.validation import validate_eval_config, validate_rollout_config, validate_train_config
+
+    validate = {"train": lambda cfg, o: validate_train_config(cfg), "eval": validate_eval_config,
+                "rollout": lambda cfg, o: validate_rollout_config(cfg)}
+    commands = app_commands()
+    assert {app for _, app, _ in commands} == {"train", "eval", "rollout"} and len(commands) >= 30
+    for page, app, overrides in commands:
+        try:
+            validate[app](compose_config(CONFIGS[app], overrides), overrides)
+        except Exception as err:
+            raise AssertionError(f"{page}: aia-{app} {' '.join(overrides)}: {err}") from None
 
 
 def test_links_between_the_pages_resolve():
