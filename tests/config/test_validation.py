@@ -40,12 +40,15 @@ def test_cross_field_rules_name_both_fields():
     assert str(error) == "conf.yaml: lr=-1.0: expected a number > 0" and error.key == "lr"
 
 
-def test_every_shipped_preset_has_only_the_schemas_keys():
+def test_every_shipped_preset_has_only_the_schemas_keys_and_is_valid():
     # the check that refuses a key added with + must not refuse a key a shipped preset sets (the algo,
-    # exploration and logger options: through the methods and test_shipped_train_presets_are_valid)
+    # exploration and logger options: through the methods and test_shipped_train_presets_are_valid), and every
+    # preset passes the app's whole validation
     for group in ("env", "experiment", "method"):
         for option in group_options(group).split(", "):
-            check_known_keys(_compose("train", [f"{group}={option}"]), TrainConfig)
+            cfg = _compose("train", [f"{group}={option}"])
+            check_known_keys(cfg, TrainConfig)
+            validate_train_config(cfg)
     check_known_keys(_compose("eval", ["policy=arvi", "env=ttenv_v5"]), EvalConfig)
     check_known_keys(_compose("rollout", ["env=random_obstacles"]), RolloutConfig)
 
