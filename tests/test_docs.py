@@ -177,15 +177,19 @@ def test_cheap_bash_lines_run_as_written(scratch, run_log):
 BENCHMARK_COMMAND = re.compile(r"^python3? benchmarks/(\w+)\.py(?:\s|$)")
 
 
+def page_commands(page: Path) -> list[str]:
+    """The commands ``page`` gives: its bash lines and its inline code (``python benchmarks/population.py --frames
+    600``, a command beside a figure), shell comments dropped."""
+    inline = [code.replace("\n", " ") for code in re.findall(r"`([^`]+)`", FENCE.sub("", page.read_text()))]
+    return [re.sub(r"\s+#\s.*$", "", command.strip()) for command in [c for _, c in bash_lines(page)] + inline]
+
+
 def benchmark_commands() -> list[tuple[str, str, list[str]]]:
-    """(page, benchmark, arguments) of every benchmark command the pages give: their bash lines and their inline
-    code (``python benchmarks/population.py --frames 600``, a command beside a figure), shell comments dropped;
-    those with a placeholder (``<...>``) left out."""
+    """(page, benchmark, arguments) of every benchmark command of the pages (:func:`page_commands`), those with a
+    placeholder (``<...>``) left out."""
     found = []
     for page in PAGES:
-        inline = [code.replace("\n", " ") for code in re.findall(r"`([^`]+)`", FENCE.sub("", page.read_text()))]
-        for command in [command for _, command in bash_lines(page)] + inline:
-            command = re.sub(r"\s+#\s.*$", "", command.strip())
+        for command in page_commands(page):
             match = BENCHMARK_COMMAND.match(command)
             if match and "<" not in command:
                 found.append((page.name, match[1], shlex.split(command)[2:]))
@@ -204,25 +208,22 @@ def test_every_benchmark_command_of_the_docs_parses_with_its_options(monkeypatch
 
 
 APP_COMMAND = re.compile(r"^aia-(train|eval|rollout)(?:\s|$)")
-CONFIGS = {"train": "train", "eval": "eval", "rollout": "rollout"}
 # app commands of the docs that are not composed, and why: a placeholder or elision to fill in, a refusal shown on
 # purpose (history.md), a file or device this machine lacks, a search space (an optuna sweeper's own syntax)
-NOT_COMPOSED = (r"<|\.\.\.|\[overrides\]|=k\b|--help|checkpoint=|resume=outputs|device=cuda|hydra/sweeper=",)
+NOT_COMPOSED = r"<|\.\.\.|\[overrides\]|=k\b|--help|checkpoint=|resume=outputs|device=cuda|hydra/sweeper="
 
 
 def app_commands() -> list[tuple[str, str, list[str]]]:
-    """(page, app, overrides) of every ``aia-train``/``aia-eval``/``aia-rollout`` command with overrides that the
-    pages give (bash lines and inline code, but history.md's, which shows refusals): ``-m`` dropped and each
-    swept value's first (``seed=0,1,2`` -> ``seed=0``), Hydra's own settings (``hydra...``) left out."""
+    """(page, app, overrides) of every ``aia-train``/``aia-eval``/``aia-rollout`` command with overrides of the
+    pages (:func:`page_commands`, but history.md's, which shows refusals): ``-m`` dropped and each swept value's
+    first (``seed=0,1,2`` -> ``seed=0``), Hydra's own settings (``hydra...``) left out."""
     found = []
     for page in PAGES:
         if page.name == "history.md":
             continue
-        inline = [code.replace("\n", " ") for code in re.findall(r"`([^`]+)`", FENCE.sub("", page.read_text()))]
-        for command in [command for _, command in bash_lines(page)] + inline:
-            command = re.sub(r"\s+#\s.*$", "", command.strip())
+        for command in page_commands(page):
             match = APP_COMMAND.match(command)
-            if not match or re.search(NOT_COMPOSED[0], command):
+            if not match or re.search(NOT_COMPOSED, command):
                 continue
             words = [word for word in shlex.split(command)[1:] if word != "-m" and not word.startswith("hydra")]
             overrides = [re.sub(r"^([^=\[]+=)([^,\[]*),.*$", r"\1\2", word) for word in words]
@@ -243,7 +244,7 @@ def test_every_app_command_of_the_docs_composes_and_validates():
     assert {app for _, app, _ in commands} == {"train", "eval", "rollout"} and len(commands) >= 30
     for page, app, overrides in commands:
         try:
-            validate[app](compose_config(CONFIGS[app], overrides), overrides)
+            validate[app](compose_config(app, overrides), overrides)
         except Exception as err:
             raise AssertionError(f"{page}: aia-{app} {' '.join(overrides)}: {err}") from None
 

@@ -163,14 +163,14 @@ def render(run: RunLog, episode: str, out: Path, size: int, frames: int, fps: fl
     gif = out.suffix.lower() == ".gif"
     images = episode_images(run, episode if episode in ("first", "last") else _episode_index(episode), size,
                             None if gif else frames, zoom)
+    image = images[0] if gif else image_strip(images)
     out.parent.mkdir(parents=True, exist_ok=True)
     with written_whole(out) as temporary:
         if gif:
-            images[0].save(temporary, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
-            return images[0].size
-        strip = image_strip(images)
-        strip.save(temporary)
-    return strip.size
+            image.save(temporary, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
+        else:
+            image.save(temporary)
+    return image.size
 
 
 def _episode_index(text: str) -> int:

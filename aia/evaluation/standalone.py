@@ -158,7 +158,7 @@ def score_scripted(cfg: DictConfig, name: str) -> dict:
     the belief error, the fractions of steps observed and in collision, and the frames per second."""
     from aia.envs import make_env
     from aia.evaluation.rollouts import run_episodes
-    from aia.evaluation.scores import belief_errors, episode_scores
+    from aia.evaluation.scores import evaluation_summary
 
     env = make_env(to_tracking_config(cfg.env), batch_size=cfg.num_worlds, device=cfg.device, seed=cfg.seed,
                    compile=cfg.compile)
@@ -173,15 +173,15 @@ def score_scripted(cfg: DictConfig, name: str) -> dict:
 
         rollout = run_episodes(env, act)
     seconds = time.perf_counter() - start
-    scores = episode_scores(rollout)
+    summary = evaluation_summary(rollout)  # aia-eval's scores of the same episodes
     returns = rollout.get(("next", "reward")).sum((1, 2))
     return {
         "policy": name,
         "episodes": cfg.num_worlds,
-        "score_mean": scores.mean().item(),
-        "score_std": scores.std(correction=0).item(),
+        "score_mean": summary["score_mean"],
+        "score_std": summary["score_std"],
         "return_mean": returns.mean().item(),
-        "belief_error": belief_errors(rollout).mean().item(),
+        "belief_error": summary["belief_error"],
         "observed_fraction": rollout.get(("next", "observed")).float().mean().item(),
         "collision_fraction": rollout.get(("next", "collision")).float().mean().item(),
         "frames_per_s": steps * cfg.num_worlds / seconds,
